@@ -1,0 +1,61 @@
+"""One result object for every problem, in the spirit of scipy's ``OptimizeResult``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class Result:
+    """Solution of a forward-statics, forward-kinematics or estimation problem.
+
+    Lengths in metres, forces in newtons, all positions in the global frame.
+    """
+
+    q: np.ndarray  # generalized coordinates (eq. 5)
+    tensions: dict[str, float]  # N, tension at the actuator of every tendon
+    displacements: dict[str, float]  # m, tendon length changes y (eq. 9)
+    markers: dict[str, np.ndarray]  # marker positions
+    backbone: np.ndarray  # (n, 3) centre line from base to tip
+    converged: bool
+    iterations: int
+    residual: float  # relative residual norm at the returned q
+    magnitudes: np.ndarray | None = None  # estimation: unknown load magnitudes, in order
+    sigma: np.ndarray | None = None  # estimation: 1-σ band of the magnitudes
+    sensitivity: dict[str, np.ndarray] | None = None  # ∂magnitudes/∂measurement
+    extra: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        """The SPEC §4 keys (plus uncertainty for estimates) as plain JSON types."""
+        out = {}
+        if self.magnitudes is not None:
+            out["magnitudes"] = _plain(self.magnitudes)
+        out.update(
+            q=_plain(self.q), tensions=_plain(self.tensions),
+            displacements=_plain(self.displacements), markers=_plain(self.markers),
+            backbone=_plain(self.backbone), converged=bool(self.converged),
+            iterations=int(self.iterations), residual=float(self.residual))
+        if self.sigma is not None:
+            out["sigma"] = _plain(self.sigma)
+        if self.sensitivity is not None:
+            out["sensitivity"] = _plain(self.sensitivity)
+        out.update(_plain(self.extra))
+        return out
+
+
+def _plain(v):
+    if isinstance(v, dict):
+        return {k: _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, np.ndarray) or hasattr(v, "__array__"):
+        return np.asarray(v, float).tolist()
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v)
+    return v

@@ -1,0 +1,364 @@
+"""The robot description (SPEC §3): immutable data loaded and validated from a TOML file.
+
+Every bad value raises :class:`RobotFileError` with one line naming the key and the reason.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .basis import DEFAULT_DEGREES, MODES
+from .rod import Rod
+
+#: a guide disk may hold its tendon at most this many local rod radii from the centre line
+REACHABLE_RADIUS_FACTOR = 2.0
+
+
+class RobotFileError(ValueError):
+    """A robot file that cannot be used; the message names the key and the reason."""
+
+
+@dataclass(frozen=True)
+class Tendon:
+    """A tendon through guide disks at ``disks`` (material abscissae, the last one its anchor);
+    offset ``d(X) = [0, y, z]`` linear in X from ``offset_base`` (X = 0) to ``offset_tip`` (X = L)."""
+
+    name: str
+    offset_base: tuple[float, float]
+    offset_tip: tuple[float, float]
+    friction: float
+    disks: tuple[float, ...]
+
+    def offset(self, X, length: float) -> np.ndarray:
+        """Cross-section offset ``[0, y, z]`` at X, shape (n, 3)."""
+        t = np.atleast_1d(np.asarray(X, float))[:, None] / length
+        yz = (1 - t) * np.array(self.offset_base) + t * np.array(self.offset_tip)
+        return np.concatenate([np.zeros((t.shape[0], 1)), yz], axis=1)
+
+
+@dataclass(frozen=True)
+class Marker:
+    name: str
+    X: float
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Numerics:
+    """Discretisation and solver settings (``[solver]`` table)."""
+
+    intervals: int = 24  # uniform Magnus intervals before disks/markers/loads are merged in
+    tolerance: float = 1e-10  # relative residual at convergence
+    max_iterations: int = 60
+
+
+@dataclass(frozen=True)
+class Robot:
+    name: str
+    rod: Rod
+    strain: tuple[tuple[str, int], ...] = tuple(DEFAULT_DEGREES.items())
+    gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
+    base_position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    base_rotation: tuple[tuple[float, ...], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    tendons: tuple[Tendon, ...] = ()
+    markers: tuple[Marker, ...] = ()
+    numerics: Numerics = Numerics()
+
+    @property
+    def tendon_names(self) -> tuple[str, ...]:
+        return tuple(t.name for t in self.tendons)
+
+    @property
+    def marker_names(self) -> tuple[str, ...]:
+        return tuple(m.name for m in self.markers)
+
+    def replace(self, **changes) -> "Robot":
+        return dataclasses.replace(self, **changes)
+
+    def with_parameters(self, young_modulus=None, density=None, friction=None) -> "Robot":
+        """A copy with other material parameters (``friction`` applies to every tendon)."""
+        rod = self.rod
+        if young_modulus is not None:
+            rod = dataclasses.replace(rod, young_modulus=float(young_modulus))
+        if density is not None:
+            rod = dataclasses.replace(rod, density=float(density))
+        tendons = self.tendons
+        if friction is not None:
+            tendons = tuple(dataclasses.replace(t, friction=float(friction)) for t in tendons)
+        return dataclasses.replace(self, rod=rod, tendons=tendons)
+
+
+# ----------------------------------------------------------------------------- loading
+
+def load_robot(path: str | Path) -> Robot:
+    """Read and validate a robot file (SPEC §3)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise RobotFileError(f"{path}: cannot read robot file ({exc.strerror})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise RobotFileError(f"{path}: not valid TOML ({exc})") from None
+    return parse_robot(data, source=str(path), default_name=path.stem)
+
+
+class _Reader:
+    """Typed access to one TOML table with key paths in the error messages."""
+
+    def __init__(self, table: Any, where: str, source: str):
+        self.source, self.where = source, where
+        if not isinstance(table, dict):
+            self.fail("", "must be a table")
+        self.table = table
+
+    def fail(self, key: str, reason: str):
+        name = f"{self.where}.{key}" if key and self.where else (key or self.where)
+        raise RobotFileError(f"{self.source}: {name}: {reason}")
+
+    def check_keys(self, allowed):
+        for key in self.table:
+            if key not in allowed:
+                self.fail(key, f"unknown key (allowed: {', '.join(allowed)})")
+
+    def has(self, key):
+        return key in self.table
+
+    def number(self, key, *, default=None, low=None, high=None, low_open=False):
+        if key not in self.table:
+            if default is None:
+                self.fail(key, "missing")
+            return default
+        return self._number(key, self.table[key], low, high, low_open)
+
+    def _number(self, key, v, low=None, high=None, low_open=False):
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            self.fail(key, f"must be a number, got {v!r}")
+        v = float(v)
+        if not math.isfinite(v):
+            self.fail(key, f"must be finite, got {v}")
+        if low is not None and (v <= low if low_open else v < low):
+            self.fail(key, f"must be {'>' if low_open else '>='} {low:g}, got {v:g}")
+        if high is not None and v > high:
+            self.fail(key, f"must be <= {high:g}, got {v:g}")
+        return v
+
+    def integer(self, key, *, default=None, low=0, high=None):
+        if key not in self.table:
+            if default is None:
+                self.fail(key, "missing")
+            return default
+        v = self.table[key]
+        if isinstance(v, bool) or not isinstance(v, int):
+            self.fail(key, f"must be a whole number, got {v!r}")
+        if v < low or (high is not None and v > high):
+            self.fail(key, f"must be between {low} and {high}, got {v}" if high is not None
+                      else f"must be >= {low}, got {v}")
+        return v
+
+    def vector(self, key, n, *, default=None):
+        if key not in self.table:
+            if default is None:
+                self.fail(key, "missing")
+            return default
+        v = self.table[key]
+        if not isinstance(v, list) or len(v) != n:
+            self.fail(key, f"must be a list of {n} numbers, got {v!r}")
+        return tuple(self._number(key, x) for x in v)
+
+    def string(self, key, *, default=None):
+        if key not in self.table:
+            if default is None:
+                self.fail(key, "missing")
+            return default
+        v = self.table[key]
+        if not isinstance(v, str) or not v.strip():
+            self.fail(key, f"must be a non-empty string, got {v!r}")
+        return v
+
+
+def parse_robot(data: dict, source: str = "robot", default_name: str = "robot") -> Robot:
+    """Validate a parsed robot-file dictionary and build a :class:`Robot`."""
+    top = _Reader(data, "", source)
+    top.check_keys(("name", "rod", "strain", "gravity", "base", "tendon", "marker", "solver"))
+    name = top.string("name", default=default_name)
+
+    if not top.has("rod"):
+        top.fail("rod", "missing table")
+    rod = _parse_rod(_Reader(data["rod"], "rod", source))
+    L = rod.length
+
+    strain = dict(DEFAULT_DEGREES)
+    if top.has("strain"):
+        s = _Reader(data["strain"], "strain", source)
+        s.check_keys(MODES)
+        strain = {m: s.integer(m, high=20) for m in MODES if s.has(m)}
+        if not strain:
+            s.fail("", "must name at least one strain mode")
+
+    gravity = (0.0, 0.0, -9.81)
+    if top.has("gravity"):
+        g = _Reader(data["gravity"], "gravity", source)
+        g.check_keys(("acceleration",))
+        gravity = g.vector("acceleration", 3)
+
+    base_position, base_rotation = (0.0, 0.0, 0.0), tuple(map(tuple, np.eye(3)))
+    if top.has("base"):
+        b = _Reader(data["base"], "base", source)
+        b.check_keys(("position", "rotation"))
+        base_position = b.vector("position", 3, default=base_position)
+        if b.has("rotation"):
+            rows = data["base"]["rotation"]
+            if not isinstance(rows, list) or len(rows) != 3:
+                b.fail("rotation", "must be 3 rows of 3 numbers")
+            base_rotation = tuple(_Reader({"rotation": r}, "base", source).vector("rotation", 3)
+                                  for r in rows)
+            R = np.array(base_rotation)
+            if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+                b.fail("rotation", "must be a rotation matrix (orthonormal rows, determinant +1)")
+
+    tendons = []
+    raw = data.get("tendon", [])
+    if not isinstance(raw, list):
+        top.fail("tendon", "must be an array of tables ([[tendon]])")
+    for i, t in enumerate(raw):
+        tendons.append(_parse_tendon(_Reader(t, f"tendon[{i}]", source), rod))
+    _unique([t.name for t in tendons], "tendon", top)
+
+    markers = []
+    raw = data.get("marker", [])
+    if not isinstance(raw, list):
+        top.fail("marker", "must be an array of tables ([[marker]])")
+    for i, m in enumerate(raw):
+        r = _Reader(m, f"marker[{i}]", source)
+        r.check_keys(("name", "X", "offset"))
+        markers.append(Marker(r.string("name"), r.number("X", low=0.0, high=L),
+                              r.vector("offset", 3, default=(0.0, 0.0, 0.0))))
+    _unique([m.name for m in markers], "marker", top)
+
+    numerics = Numerics()
+    if top.has("solver"):
+        s = _Reader(data["solver"], "solver", source)
+        s.check_keys(("intervals", "tolerance", "max_iterations"))
+        numerics = Numerics(
+            intervals=s.integer("intervals", default=numerics.intervals, low=2, high=1000),
+            tolerance=s.number("tolerance", default=numerics.tolerance, low=0.0, high=1e-3,
+                               low_open=True),
+            max_iterations=s.integer("max_iterations", default=numerics.max_iterations, low=1,
+                                     high=10000))
+    return Robot(name, rod, tuple(strain.items()), gravity, base_position, base_rotation, tuple(tendons),
+                 tuple(markers), numerics)
+
+
+def _unique(names, what, reader):
+    seen = set()
+    for n in names:
+        if n in seen:
+            reader.fail(what, f"two {what}s are named {n!r}")
+        seen.add(n)
+
+
+def _parse_rod(r: _Reader) -> Rod:
+    r.check_keys(("length", "radius", "young_modulus", "poisson_ratio", "density"))
+    L = r.number("length", low=0.0, low_open=True)
+    if not r.has("radius"):
+        r.fail("radius", "missing")
+    raw = r.table["radius"]
+    if not isinstance(raw, list) or len(raw) < 2:
+        r.fail("radius", "must be [base, tip] or a list of [X, r] pairs")
+    if all(isinstance(p, list) for p in raw):
+        knots = [_Reader({"radius": p}, "rod", r.source).vector("radius", 2) for p in raw]
+        X = [k[0] for k in knots]
+        if abs(X[0]) > 1e-12 or abs(X[-1] - L) > 1e-9 * max(L, 1):
+            r.fail("radius", f"[X, r] pairs must run from X = 0 to X = length = {L:g}")
+        if any(b <= a for a, b in zip(X, X[1:])):
+            r.fail("radius", "X of the [X, r] pairs must be strictly increasing")
+        knots = [(x, rr) for x, rr in knots]
+        knots[-1] = (L, knots[-1][1])
+    else:
+        rb, rt = r.vector("radius", 2)
+        knots = [(0.0, rb), (L, rt)]
+    if any(rr <= 0 for _, rr in knots):
+        r.fail("radius", "every radius must be > 0")
+    return Rod(L, tuple(knots), r.number("young_modulus", low=0.0, low_open=True),
+               r.number("poisson_ratio", low=-1.0, high=0.5, low_open=True),
+               r.number("density", low=0.0))
+
+
+def _parse_tendon(r: _Reader, rod: Rod) -> Tendon:
+    r.check_keys(("name", "offset_base", "offset_tip", "friction", "disks"))
+    name = r.string("name")
+    ob, ot = r.vector("offset_base", 2), r.vector("offset_tip", 2)
+    mu = r.number("friction", default=0.0, low=0.0)
+    if not r.has("disks"):
+        r.fail("disks", "missing (a count, or a list of X)")
+    raw = r.table["disks"]
+    L = rod.length
+    if isinstance(raw, int) and not isinstance(raw, bool):
+        if raw < 2:
+            r.fail("disks", f"must be at least 2 disks, got {raw}")
+        disks = tuple(np.linspace(0.0, L, raw))
+    elif isinstance(raw, list):
+        if len(raw) < 2:
+            r.fail("disks", "must list at least 2 disk positions")
+        disks = tuple(r._number("disks", x) for x in raw)
+        if any(x < 0 or x > L * (1 + 1e-12) for x in disks):
+            r.fail("disks", f"every disk X must lie in [0, {L:g}]")
+        if any(b <= a for a, b in zip(disks, disks[1:])):
+            r.fail("disks", "disk positions must be strictly increasing")
+    else:
+        r.fail("disks", f"must be a count or a list of X, got {raw!r}")
+    t = Tendon(name, ob, ot, mu, disks)
+    X = np.array(disks)
+    reach = np.linalg.norm(t.offset(X, L), axis=1) / rod.radius(X)
+    worst = int(np.argmax(reach))
+    if reach[worst] > REACHABLE_RADIUS_FACTOR:
+        r.fail("offset_base", f"tendon {name!r} at X = {X[worst]:g} m sits "
+               f"{reach[worst]:.2f} rod radii from the centre line, outside the reachable radius "
+               f"({REACHABLE_RADIUS_FACTOR:g} radii)")
+    return t
+
+
+# ----------------------------------------------------------------------------- writing
+
+def robot_to_toml(robot: Robot) -> str:
+    """Serialise a robot back to the SPEC §3 format."""
+    f = repr
+    rod = robot.rod
+    lines = [f"name = {_q(robot.name)}", "", "[rod]", f"length = {f(rod.length)}"]
+    if len(rod.radius_knots) == 2:
+        lines.append(f"radius = [{f(rod.radius_knots[0][1])}, {f(rod.radius_knots[1][1])}]")
+    else:
+        lines.append("radius = [" + ", ".join(f"[{f(x)}, {f(r)}]" for x, r in rod.radius_knots) + "]")
+    lines += [f"young_modulus = {f(rod.young_modulus)}", f"poisson_ratio = {f(rod.poisson_ratio)}",
+              f"density = {f(rod.density)}", "", "[strain]"]
+    lines += [f"{m} = {d}" for m, d in robot.strain]
+    lines += ["", "[gravity]", f"acceleration = {_vec(robot.gravity)}", "", "[base]",
+              f"position = {_vec(robot.base_position)}",
+              "rotation = [" + ", ".join(_vec(r) for r in robot.base_rotation) + "]", "",
+              "[solver]", f"intervals = {robot.numerics.intervals}",
+              f"tolerance = {f(robot.numerics.tolerance)}",
+              f"max_iterations = {robot.numerics.max_iterations}"]
+    for t in robot.tendons:
+        lines += ["", "[[tendon]]", f"name = {_q(t.name)}", f"offset_base = {_vec(t.offset_base)}",
+                  f"offset_tip = {_vec(t.offset_tip)}", f"friction = {f(t.friction)}",
+                  f"disks = {_vec(t.disks)}"]
+    for m in robot.markers:
+        lines += ["", "[[marker]]", f"name = {_q(m.name)}", f"X = {f(m.X)}", f"offset = {_vec(m.offset)}"]
+    return "\n".join(lines) + "\n"
+
+
+def _vec(v) -> str:
+    return "[" + ", ".join(repr(float(x)) for x in v) + "]"
+
+
+def _q(s: str) -> str:
+    return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'

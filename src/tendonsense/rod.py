@@ -1,0 +1,38 @@
+"""Rod geometry and material: circular cross-section of piecewise-linear radius (SPEC §2)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Rod:
+    """A Cosserat rod of length ``length`` whose radius is linear between ``radius_knots``
+    ``((0, r0), ..., (L, rn))``; linear elastic, ``G = E / (2 (1 + ν))``."""
+
+    length: float
+    radius_knots: tuple[tuple[float, float], ...]
+    young_modulus: float
+    poisson_ratio: float
+    density: float
+
+    def radius(self, X) -> np.ndarray:
+        Xk, rk = np.array(self.radius_knots).T
+        return np.interp(X, Xk, rk)
+
+    def breakpoints(self) -> np.ndarray:
+        """Abscissae where the radius law changes slope (interior knots)."""
+        return np.array([x for x, _ in self.radius_knots[1:-1]])
+
+    def area(self, X) -> np.ndarray:
+        return np.pi * self.radius(X) ** 2
+
+    def section_stiffness(self, X) -> np.ndarray:
+        """Diagonal of ``Σ(X) = diag(G Jx, E Jy, E Jz, E A, G A, G A)`` divided by E, shape (n, 6)."""
+        r = self.radius(np.atleast_1d(X))
+        A = np.pi * r**2
+        I = np.pi * r**4 / 4.0  # Jy = Jz; Jx = 2 I (polar)
+        g = 1.0 / (2.0 * (1.0 + self.poisson_ratio))
+        return np.stack([g * 2 * I, I, I, A, g * A, g * A], axis=-1)
