@@ -51,9 +51,23 @@ def _step(Omega, dOmega):
     return E, _vdexp(Omega) @ dOmega, _vAd_inv(E)
 
 
-def grid_frames(model: Model, q) -> Frames:
-    """Poses and body Jacobians at every grid node (base pose included)."""
-    E, A, Adi = _step(*magnus(q, jnp.asarray(model.h), model.Phi1, model.Phi2))
+def grid_frames(model: Model, q, points: PointSet | None = None):
+    """Poses and body Jacobians at every grid node (base pose included); with ``points``, also
+    at those points (one batched Magnus/exp evaluation for both)."""
+    n = model.h.size
+    h, Phi1, Phi2 = model.h, model.Phi1, model.Phi2
+    if points is not None:
+        h, Phi1, Phi2 = (np.concatenate([a, b]) for a, b in
+                         ((h, points.h), (Phi1, points.Phi1), (Phi2, points.Phi2)))
+    E, A, Adi = _step(*magnus(q, jnp.asarray(h), Phi1, Phi2))
+    grid = _chain(model, q, E[:n], A[:n], Adi[:n])
+    if points is None:
+        return grid
+    g0, J0 = grid.g[points.start], grid.J[points.start]
+    return grid, Frames(g0 @ E[n:], Adi[n:] @ (J0 + A[n:]))
+
+
+def _chain(model, q, E, A, Adi) -> Frames:
     g0 = jnp.asarray(model.base)
     J0 = jnp.zeros((6, model.nq), q.dtype)
 
@@ -65,13 +79,6 @@ def grid_frames(model: Model, q) -> Frames:
 
     _, (g, J) = jax.lax.scan(body, (g0, J0), (E, A, Adi))
     return Frames(jnp.concatenate([g0[None], g]), jnp.concatenate([J0[None], J]))
-
-
-def point_frames(points: PointSet, q, grid: Frames) -> Frames:
-    """Poses and body Jacobians at off-grid points by a partial step from their grid node."""
-    E, A, Adi = _step(*magnus(q, jnp.asarray(points.h), points.Phi1, points.Phi2))
-    g0, J0 = grid.g[points.start], grid.J[points.start]
-    return Frames(g0 @ E, Adi @ (J0 + A))
 
 
 def positions(frames: Frames, offsets=None) -> jax.Array:

@@ -8,14 +8,19 @@ series so that values *and* derivatives stay exact at zero rotation.
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 
 _SMALL = 1e-2  # theta^2 below which the Taylor series are used (theta < 0.1)
 
 
+# skew(w)[i, j] = -ε_ijk w_k
+_LEVI = -np.array([[[int((i - j) * (j - k) * (k - i) / 2) for k in range(3)] for j in range(3)]
+                   for i in range(3)], float)
+
+
 def skew(w):
     """3-vector -> 3x3 skew-symmetric matrix, ``skew(a) @ b == cross(a, b)``."""
-    z = jnp.zeros_like(w[0])
-    return jnp.array([[z, -w[2], w[1]], [w[2], z, -w[0]], [-w[1], w[0], z]])
+    return jnp.einsum("ijk,k->ij", _LEVI, w)
 
 
 def hat(xi):

@@ -7,7 +7,6 @@ Everything here is built once with numpy; the compiled functions close over it a
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 
@@ -30,11 +29,13 @@ class PointSet:
 
 
 @dataclass(frozen=True, eq=False)
-class TendonGrid:
-    name: str
-    nodes: np.ndarray  # grid-node index of every disk
-    offsets: np.ndarray  # (nd, 3) cross-section offsets d_i
-    rest_length: float  # l* of eq. 9, the path length of the straight rod
+class TendonGroup:
+    """Tendons with the same number of disks, computed together."""
+
+    index: np.ndarray  # (k,) positions in the robot's tendon list
+    nodes: np.ndarray  # (k, nd) grid-node index of every disk
+    offsets: np.ndarray  # (k, nd, 3) cross-section offsets d_i
+    rest_length: np.ndarray  # (k,) l* of eq. 9, the path length on the straight rod
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,16 +51,22 @@ class Model:
     K_unit: np.ndarray  # eq. 8a per unit Young's modulus
     gravity_points: PointSet
     gravity_weights: np.ndarray  # quadrature weight x area, so that ∫ρA f dX = ρ Σ w f
-    tendons: tuple[TendonGrid, ...]
+    tendon_groups: tuple[TendonGroup, ...]
     marker_nodes: np.ndarray
     marker_offsets: np.ndarray
     load_points: tuple[float, ...]
     load_nodes: np.ndarray
     base: np.ndarray  # 4x4 base pose
+    L_inv_unit: np.ndarray  # L⁻¹ with K_unit = L Lᵀ (scales equilibrium residuals)
+    length_stiffness_unit: np.ndarray  # (n_t,) ≈ 1 / (bᵀ K_unit⁻¹ b), b = ∂y/∂q at q = 0
 
     @property
     def nq(self) -> int:
         return self.basis.n
+
+    @property
+    def n_tendons(self) -> int:
+        return len(self.robot.tendons)
 
     @property
     def h(self) -> np.ndarray:
@@ -83,6 +90,14 @@ class Model:
         Phi = basis(X)
         S = rod.section_stiffness(X)
         K = np.einsum("k,kai,ka,kaj->ij", W, Phi, S, Phi)
+        L_inv = np.linalg.inv(np.linalg.cholesky(K))
+        # small-strain tendon stretch y ≈ ∫ (εx + κy dz − κz dy) dX, for residual scaling only
+        b = np.zeros((basis.n, len(robot.tendons)))
+        for j, t in enumerate(robot.tendons):
+            d = t.offset(X, L)
+            w = np.stack([0 * X, d[:, 2], -d[:, 1], 1 + 0 * X, 0 * X, 0 * X], axis=1)
+            b[:, j] = np.einsum("k,kai,ka->i", W, Phi, w)
+        k_len = 1.0 / np.maximum(np.sum((L_inv @ b) ** 2, axis=0), 1e-300)
 
         # gravity: two-point Gauss rule on every interval
         xg2 = np.array([0.5 - _Z, 0.5 + _Z])
@@ -93,32 +108,29 @@ class Model:
 
         index = {x: i for i, x in enumerate(nodes)}
         snap = lambda x: index[_nearest(nodes, x)]
-        tendons = []
-        for t in robot.tendons:
-            X = np.array(t.disks)
-            d = t.offset(X, L)
-            straight = d + X[:, None] * np.array([1.0, 0.0, 0.0])
-            tendons.append(TendonGrid(t.name, np.array([snap(x) for x in X]), d,
-                                      float(np.linalg.norm(np.diff(straight, axis=0), axis=1).sum())))
+        groups = []
+        for nd in sorted({len(t.disks) for t in robot.tendons}):
+            idx = [i for i, t in enumerate(robot.tendons) if len(t.disks) == nd]
+            X = np.array([robot.tendons[i].disks for i in idx])
+            d = np.stack([robot.tendons[i].offset(X[k], L) for k, i in enumerate(idx)])
+            straight = d + X[..., None] * np.array([1.0, 0.0, 0.0])
+            groups.append(TendonGroup(
+                np.array(idx), np.vectorize(snap)(X).astype(int), d,
+                np.linalg.norm(np.diff(straight, axis=1), axis=2).sum(axis=1)))
         return Model(
             robot=robot, basis=basis, nodes=nodes, Phi1=basis(z1), Phi2=basis(z2), K_unit=K,
-            gravity_points=gp, gravity_weights=gw, tendons=tuple(tendons),
+            gravity_points=gp, gravity_weights=gw, tendon_groups=tuple(groups),
             marker_nodes=np.array([snap(m.X) for m in robot.markers], int),
             marker_offsets=np.array([m.offset for m in robot.markers], float).reshape(-1, 3),
             load_points=tuple(float(x) for x in load_points),
             load_nodes=np.array([snap(x) for x in load_points], int),
-            base=_pose(robot))
+            base=_pose(robot), L_inv_unit=L_inv, length_stiffness_unit=k_len)
 
     def pointset(self, X) -> PointSet:
         """Arbitrary material points, each reached from the grid node at or below it."""
         X = np.clip(np.atleast_1d(np.asarray(X, float)), 0.0, self.nodes[-1])
         start = np.clip(np.searchsorted(self.nodes, X, side="right") - 1, 0, self.nodes.size - 2)
         return _pointset(self.basis, self.nodes, start, X - self.nodes[start])
-
-    @cached_property
-    def K_cholesky(self) -> np.ndarray:
-        """Lower Cholesky factor of ``K_unit`` (used to scale equilibrium residuals)."""
-        return np.linalg.cholesky(self.K_unit)
 
 
 def _pose(robot: Robot) -> np.ndarray:

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import loads, tendons
-from .kinematics import Frames, grid_frames, point_frames, positions
+from .kinematics import Frames, grid_frames, positions
 from .model import Model
 
 
@@ -54,7 +54,7 @@ class Unknowns(NamedTuple):
 
     @staticmethod
     def none(model: Model, n_z: int = 0) -> "Unknowns":
-        return Unknowns(jnp.zeros((len(model.tendons), n_z)),
+        return Unknowns(jnp.zeros((model.n_tendons, n_z)),
                         jnp.zeros((n_z, len(model.load_points), 3)), jnp.zeros((n_z, 3)))
 
 
@@ -69,15 +69,14 @@ class Terms(NamedTuple):
 
 
 def terms(model: Model, q, z, drive: Drive, unknowns: Unknowns, params: Params, lam) -> Terms:
-    grid = grid_frames(model, q)
+    grid, gp = grid_frames(model, q, model.gravity_points)
     B = tendons.actuation(model, grid, params.friction)
     T = lam * drive.tensions + unknowns.tensions @ z
     F = lam * drive.forces + jnp.tensordot(z, unknowns.forces, axes=1)
     a = lam * drive.gravity + z @ unknowns.gravity
     at_loads = Frames(grid.g[model.load_nodes], grid.J[model.load_nodes])
     external = (loads.point_forces(at_loads, F)
-                + loads.gravity(point_frames(model.gravity_points, q, grid),
-                                jnp.asarray(model.gravity_weights), params.density, a))
+                + loads.gravity(gp, jnp.asarray(model.gravity_weights), params.density, a))
     return Terms(grid, B, tendons.length_changes(model, grid), T, external)
 
 
@@ -87,24 +86,13 @@ def residual(model: Model, measured: tuple[int, ...], x, drive, unknowns, params
     nq = model.nq
     q, z = x[:nq], x[nq:]
     t = terms(model, q, z, drive, unknowns, params, lam)
-    L_inv_unit, k_unit = unit_scaling(model)
-    L_inv = jnp.asarray(L_inv_unit) / jnp.sqrt(params.young_modulus)
+    L_inv = jnp.asarray(model.L_inv_unit) / jnp.sqrt(params.young_modulus)
     load = t.B @ t.tensions + t.external
     E = L_inv @ (params.young_modulus * (jnp.asarray(model.K_unit) @ q) - load)
     sel = np.array(measured, int)
-    e = jnp.sqrt(params.young_modulus * k_unit[sel]) * (t.y[sel] - lam * drive.targets)
+    k = jnp.sqrt(params.young_modulus * model.length_stiffness_unit[sel])
+    e = k * (t.y[sel] - lam * drive.targets)
     return jnp.concatenate([E, e]), jnp.linalg.norm(L_inv @ load)
-
-
-@lru_cache(maxsize=None)
-def unit_scaling(model: Model):
-    """``L⁻¹`` of ``K_unit = L Lᵀ`` and every tendon's length stiffness ``1 / (bᵀ K⁻¹ b)`` at the
-    straight rod (per unit Young's modulus, frictionless)."""
-    L_inv = np.linalg.inv(model.K_cholesky)
-    grid = grid_frames(model, jnp.zeros(model.nq))
-    B0 = np.asarray(tendons.actuation(model, grid, jnp.zeros(len(model.tendons))))
-    c = np.einsum("ij,ij->j", L_inv @ B0, L_inv @ B0)
-    return L_inv, 1.0 / np.maximum(c, 1e-300)
 
 
 class NewtonResult(NamedTuple):
@@ -117,59 +105,50 @@ class NewtonResult(NamedTuple):
 @lru_cache(maxsize=None)
 def newton_solver(model: Model, measured: tuple[int, ...], n_z: int):
     """Compiled damped Newton for the system with tendons ``measured`` and ``n_z`` unknowns:
-    ``solve(x0, drive, unknowns, params, lam) -> NewtonResult``."""
+    ``solve(x0, drive, unknowns, params, lam) -> NewtonResult``.
+
+    One loop whose every pass evaluates the residual and its Jacobian at a trial point
+    ``x + α dx``: accepted (Armijo on ½‖r‖²) it becomes the iterate and gives the next Newton
+    step, rejected it halves α.
+    """
     num = model.robot.numerics
-    unit_scaling(model)  # computed eagerly, outside the trace
     r0 = model.robot.rod.radius_knots[0][1]
     floor_unit = 1e-6 * np.sqrt(r0**4 / model.robot.rod.length)  # energy floor per √E
-
-    def fun(x, args):
-        return residual(model, measured, x, *args)
-
-    def linearise(x, args):
-        return jax.jacfwd(lambda x: (fun(x, args)[0], fun(x, args)), has_aux=True)(x)
 
     def solve(x0, drive, unknowns, params, lam):
         args = (drive, unknowns, params, lam)
         floor = floor_unit * jnp.sqrt(params.young_modulus)
 
-        def done(r, s):
-            return jnp.linalg.norm(r) <= num.tolerance * (s + floor)
+        def linearise(x):
+            f = lambda x: residual(model, measured, x, *args)  # noqa: E731
+            return jax.jacfwd(lambda x: (f(x)[0], f(x)), has_aux=True)(x)
 
         def merit(r):
             m = 0.5 * jnp.dot(r, r)
             return jnp.where(jnp.isfinite(m), m, jnp.inf)
 
-        def step(state):
-            x, r, s, it, _ = state
-            Jx, _ = linearise(x, args)
-            dx = jnp.linalg.solve(Jx, -r)
-            m0 = merit(r)
+        def cond(st):
+            return (st["status"] == 0) & (st["it"] < num.max_iterations)
 
-            def trial(alpha):
-                xn = x + alpha * dx
-                rn, sn = fun(xn, args)
-                return xn, rn, sn
+        def body(st):
+            xt = st["x"] + st["alpha"] * st["dx"]
+            Jt, (rt, st_load) = linearise(xt)
+            ok = merit(rt) <= (1 - 2e-4 * st["alpha"]) * st["m"]
+            conv = jnp.linalg.norm(rt) <= num.tolerance * (st_load + floor)
+            dx_new = jnp.linalg.solve(Jt, -rt)
+            accept = dict(x=xt, r=rt, load=st_load, m=merit(rt), dx=dx_new, alpha=1.0,
+                          it=st["it"] + 1, status=jnp.where(conv, 1, 0))
+            give_up = st["alpha"] < 2.0**-40
+            reject = dict(st, alpha=st["alpha"] / 2, status=jnp.where(give_up, 2, 0))
+            return jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), accept, reject)
 
-            def ls_cond(c):
-                alpha, (xn, rn, sn), k = c
-                return (merit(rn) > (1 - 2e-4 * alpha) * m0) & (k < 40)
-
-            def ls_body(c):
-                alpha, _, k = c
-                return alpha / 2, trial(alpha / 2), k + 1
-
-            alpha, (xn, rn, sn), _ = jax.lax.while_loop(ls_cond, ls_body, (1.0, trial(1.0), 0))
-            ok = merit(rn) <= (1 - 2e-4 * alpha) * m0
-            status = jnp.where(ok, jnp.where(done(rn, sn), 1, 0), 2)
-            return (jnp.where(ok, xn, x), jnp.where(ok, rn, r), jnp.where(ok, sn, s), it + 1,
-                    status)
-
-        r, s = fun(x0, args)
-        state = (x0, r, s, 0, jnp.where(done(r, s), 1, 0))
-        x, r, s, it, status = jax.lax.while_loop(
-            lambda st: (st[4] == 0) & (st[3] < num.max_iterations), step, state)
-        return NewtonResult(x, status == 1, it, jnp.linalg.norm(r) / (s + floor))
+        n = x0.shape[0]
+        st = dict(x=x0, r=jnp.zeros(n), load=jnp.asarray(0.0), m=jnp.asarray(jnp.inf),
+                  dx=jnp.zeros(n), alpha=jnp.asarray(1.0), it=jnp.asarray(-1),
+                  status=jnp.asarray(0))
+        st = jax.lax.while_loop(cond, body, st)
+        return NewtonResult(st["x"], st["status"] == 1, st["it"],
+                            jnp.linalg.norm(st["r"]) / (st["load"] + floor))
 
     return jax.jit(solve)
 
@@ -210,10 +189,10 @@ def _outputs_fn(model: Model):
     backbone = model.pointset(np.linspace(0.0, model.robot.rod.length, 101))
 
     def out(q):
-        grid = grid_frames(model, q)
+        grid, bb = grid_frames(model, q, backbone)
         markers = positions(Frames(grid.g[model.marker_nodes], grid.J[model.marker_nodes]),
                             jnp.asarray(model.marker_offsets))
-        return (markers, positions(point_frames(backbone, q, grid)),
+        return (markers, positions(bb),
                 tendons.length_changes(model, grid))
 
     return jax.jit(out)

@@ -1,29 +1,33 @@
 """Tendons: path through the guide disks, length change (eq. 9), Capstan friction (eq. 10–13)
-and the actuation matrix ``B(q)`` (eq. 14)."""
+and the actuation matrix ``B(q)`` (eq. 14).
+
+Tendons with the same number of disks are computed together (leading axis k)."""
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
 
-from .kinematics import Frames, positions
+from .kinematics import Frames
 from .lie import safe_norm
-from .model import Model, TendonGrid
+from .model import Model, TendonGroup
 
 
-def path(tendon: TendonGrid, grid: Frames):
-    """Frames at the disks and the global tendon points ``r_i = g_i [d_i; 1]``."""
-    at = Frames(grid.g[tendon.nodes], grid.J[tendon.nodes])
-    return at, positions(at, tendon.offsets)
+def path(group: TendonGroup, grid: Frames):
+    """Frames at the disks, (k, nd, ...), and the global tendon points ``r_i = g_i [d_i; 1]``."""
+    g, J = grid.g[group.nodes], grid.J[group.nodes]
+    r = g[..., :3, 3] + jnp.einsum("knij,knj->kni", g[..., :3, :3], group.offsets)
+    return Frames(g, J), r
 
 
 def length_changes(model: Model, grid: Frames):
     """``y = Σ ‖r_{i+1} − r_i‖ − l*`` for every tendon (eq. 9), shape (n_t,)."""
-    out = []
-    for t in model.tendons:
-        _, r = path(t, grid)
-        out.append(jnp.sum(jnp.linalg.norm(jnp.diff(r, axis=0), axis=1)) - t.rest_length)
-    return jnp.stack(out) if out else jnp.zeros((0,))
+    y = jnp.zeros(model.n_tendons)
+    for grp in model.tendon_groups:
+        _, r = path(grp, grid)
+        lengths = jnp.sum(jnp.linalg.norm(jnp.diff(r, axis=1), axis=2), axis=1)
+        y = y.at[grp.index].set(lengths - grp.rest_length)
+    return y
 
 
 def actuation(model: Model, grid: Frames, friction):
@@ -33,23 +37,27 @@ def actuation(model: Model, grid: Frames, friction):
     drops by ``exp(−μ φ_i)`` across every disk (eq. 10), ``φ_i`` the angle the tendon turns there;
     at the first disk it arrives from the actuator along the local −x axis.
     """
-    cols = []
-    for j, t in enumerate(model.tendons):
-        at, r = path(t, grid)
-        seg = jnp.diff(r, axis=0)
-        u = seg / jnp.linalg.norm(seg, axis=1, keepdims=True)
-        v_R = jnp.concatenate([u, jnp.zeros((1, 3))])
-        v_L = jnp.concatenate([-at.g[:1, :3, 0], -u])
-        phi = _vangle(-v_L[:-1], v_R[:-1])  # eq. 10, turning angle at every disk but the anchor
-        ratio = jnp.exp(-friction[j] * jnp.concatenate([jnp.zeros(1), jnp.cumsum(phi)]))
-        f = ratio[:, None] * v_L + jnp.concatenate([ratio[1:], jnp.zeros(1)])[:, None] * v_R
-        f_loc = jnp.einsum("nji,nj->ni", at.g[:, :3, :3], f)  # R_iᵀ f_i
-        W = jnp.concatenate([jnp.cross(t.offsets, f_loc), f_loc], axis=1)  # eq. 13
-        cols.append(jnp.einsum("nki,nk->i", at.J, W))
-    return jnp.stack(cols, axis=1) if cols else jnp.zeros((model.nq, 0))
+    B = jnp.zeros((model.nq, model.n_tendons))
+    for grp in model.tendon_groups:
+        at, r = path(grp, grid)
+        k = r.shape[0]
+        seg = jnp.diff(r, axis=1)
+        u = seg / jnp.linalg.norm(seg, axis=2, keepdims=True)
+        v_R = jnp.concatenate([u, jnp.zeros((k, 1, 3))], axis=1)
+        v_L = jnp.concatenate([-at.g[:, :1, :3, 0], -u], axis=1)
+        phi = _angle(-v_L[:, :-1], v_R[:, :-1])  # eq. 10: the turn at every disk but the anchor
+        mu = friction[grp.index][:, None]
+        ratio = jnp.exp(-mu * jnp.concatenate([jnp.zeros((k, 1)), jnp.cumsum(phi, axis=1)], axis=1))
+        after = jnp.concatenate([ratio[:, 1:], jnp.zeros((k, 1))], axis=1)
+        f = ratio[..., None] * v_L + after[..., None] * v_R  # eq. 12
+        f_loc = jnp.einsum("knji,knj->kni", at.g[..., :3, :3], f)  # R_iᵀ f_i
+        W = jnp.concatenate([jnp.cross(grp.offsets, f_loc), f_loc], axis=2)  # eq. 13
+        B = B.at[:, grp.index].set(jnp.einsum("knai,kna->ik", at.J, W))  # eq. 14
+    return B
 
 
-def _vangle(a, b):
-    """Row-wise angle between unit vectors, ``2 atan2(|a − b|, |a + b|)``; its derivative at a
+def _angle(a, b):
+    """Angle between unit vectors (last axis), ``2 atan2(|a − b|, |a + b|)``; its derivative at a
     straight pass (angle 0, where the Capstan law has a kink) is taken as 0."""
-    return 2.0 * jnp.arctan2(jax.vmap(safe_norm)(a - b), jax.vmap(safe_norm)(a + b))
+    n = jax.vmap(jax.vmap(safe_norm))
+    return 2.0 * jnp.arctan2(n(a - b), n(a + b))

@@ -1,0 +1,172 @@
+"""An independent Cosserat-rod boundary-value solver (test suite only).
+
+Full Kirchhoff–Cosserat statics with shear and extension, integrated in the global frame
+(Antman; Rucker & Webster 2011):
+
+    r' = R v,  R' = R û,  n' = −ρ A a_g,  m' = −r' × n,
+    v = e_x + diag(EA, GA, GA)⁻¹ Rᵀ n,   u = diag(G Jx, E Jy, E Jz)⁻¹ Rᵀ m,
+
+with the orientation as a unit quaternion. Point forces (tendon disks, point loads) make
+``n`` and ``m`` jump. The rod is split at every disk, marker and load into segments that share
+one normalised abscissa, so that ``scipy.integrate.solve_bvp`` solves all of them at once with
+the jumps — which depend on the neighbouring disk positions through the tendon path and the
+Capstan law of SPEC §2 — written as boundary conditions. Nothing here uses tendonsense's
+kinematics, strain basis or solver; only the robot description is shared.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.integrate import solve_bvp
+
+
+def quat_to_rot(Q):
+    """(4, m) unit quaternions [w, x, y, z] -> (m, 3, 3)."""
+    Q = Q / np.linalg.norm(Q, axis=0)
+    w, x, y, z = Q
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
+
+
+def rot_to_quat(R):
+    w = np.sqrt(max(1e-300, 1 + np.trace(R))) / 2
+    return np.array([w, (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w),
+                     (R[1, 0] - R[0, 1]) / (4 * w)])
+
+
+class CosseratBVP:
+    """The robot with tensions ``T`` (per tendon), point loads [(X, f)] and its gravity."""
+
+    def __init__(self, robot, tensions, point_forces=()):
+        self.robot = robot
+        rod = robot.rod
+        self.L = rod.length
+        self.E, self.G = rod.young_modulus, rod.young_modulus / (2 * (1 + rod.poisson_ratio))
+        self.rho = rod.density
+        self.a_g = np.array(robot.gravity, float)
+        self.T = np.asarray(tensions, float)
+        self.loads = [(float(X), np.asarray(f, float)) for X, f in point_forces]
+        cuts = {0.0, self.L, *(m.X for m in robot.markers), *(X for X, _ in self.loads)}
+        for t in robot.tendons:
+            cuts |= set(t.disks)
+        self.cuts = np.array(sorted(cuts))
+        self.nseg = len(self.cuts) - 1
+        self.R0 = np.array(robot.base_rotation)
+        self.p0 = np.array(robot.base_position)
+
+    def _radius(self, X):
+        return self.robot.rod.radius(X)
+
+    def ode(self, s, y, lam):
+        out = np.empty_like(y)
+        for k in range(self.nseg):
+            a, b = self.cuts[k], self.cuts[k + 1]
+            X = a + s * (b - a)
+            Y = y[13 * k:13 * k + 13]
+            r, Q, n, m = Y[:3], Y[3:7], Y[7:10], Y[10:13]
+            R = quat_to_rot(Q)
+            rad = self._radius(X)
+            A, I = np.pi * rad**2, np.pi * rad**4 / 4
+            n_loc = np.einsum("mji,jm->im", R, n)
+            m_loc = np.einsum("mji,jm->im", R, m)
+            v = np.array([1.0, 0, 0])[:, None] + n_loc / np.array([self.E * A, self.G * A, self.G * A])
+            u = m_loc / np.array([self.G * 2 * I, self.E * I, self.E * I])
+            dr = np.einsum("mij,jm->im", R, v)
+            w, x, yq, z = Q / np.linalg.norm(Q, axis=0)
+            ux, uy, uz = u
+            dQ = 0.5 * np.array([-x * ux - yq * uy - z * uz, w * ux + yq * uz - z * uy,
+                                 w * uy + z * ux - x * uz, w * uz + x * uy - yq * ux])
+            dn = -lam * self.rho * A * self.a_g[:, None]
+            dm = -np.cross(dr.T, n.T).T
+            out[13 * k:13 * k + 13] = (b - a) * np.concatenate([dr, dQ, dn, dm])
+        return out
+
+    def _frames_at_cuts(self, ya, yb):
+        """Position and rotation at every cut (from the segment starting there, or ending)."""
+        frames = []
+        for c in range(self.nseg + 1):
+            Y = ya[13 * c:13 * c + 13] if c < self.nseg else yb[13 * (c - 1):13 * c]
+            frames.append((Y[:3], quat_to_rot(Y[3:7, None])[0]))
+        return frames
+
+    def point_forces_at_cuts(self, frames, lam):
+        """Global force and moment (about the centre line) applied at every cut."""
+        F = np.zeros((self.nseg + 1, 3))
+        M = np.zeros((self.nseg + 1, 3))
+        cut_index = {x: i for i, x in enumerate(self.cuts)}
+        for j, t in enumerate(self.robot.tendons):
+            if self.T[j] == 0:
+                continue
+            idx = [cut_index[x] for x in t.disks]
+            d = t.offset(np.array(t.disks), self.L)
+            pts = [frames[c][0] + frames[c][1] @ d[i] for i, c in enumerate(idx)]
+            nd = len(idx)
+            tension = lam * self.T[j]
+            for i in range(nd):
+                if i == 0:
+                    vL = -frames[idx[0]][1][:, 0]
+                else:
+                    vL = pts[i - 1] - pts[i]
+                    vL /= np.linalg.norm(vL)
+                if i < nd - 1:
+                    vR = pts[i + 1] - pts[i]
+                    vR /= np.linalg.norm(vR)
+                    phi = np.arccos(np.clip(-vL @ vR, -1.0, 1.0))
+                    after = tension * np.exp(-t.friction * phi)
+                else:
+                    vR, after = np.zeros(3), 0.0
+                f = tension * vL + after * vR
+                c = idx[i]
+                F[c] += f
+                M[c] += np.cross(frames[c][1] @ d[i], f)
+                tension = after
+        for X, f in self.loads:
+            F[cut_index[X]] += lam * f
+        return F, M
+
+    def bc(self, ya, yb, lam):
+        res = [ya[0:3] - self.p0, ya[3:7] - rot_to_quat(self.R0)]
+        F, M = self.point_forces_at_cuts(self._frames_at_cuts(ya, yb), lam)
+        for k in range(self.nseg - 1):
+            end, start = yb[13 * k:13 * k + 13], ya[13 * (k + 1):13 * (k + 2)]
+            c = k + 1
+            res += [end[:7] - start[:7], end[7:10] - (start[7:10] + F[c]),
+                    end[10:13] - (start[10:13] + M[c])]
+        tip = yb[13 * (self.nseg - 1):]
+        res += [tip[7:10] - F[-1], tip[10:13] - M[-1]]
+        return np.concatenate(res)
+
+    def solve(self, steps=(0.25, 0.5, 0.75, 1.0), nodes=11, tol=1e-7):
+        s = np.linspace(0.0, 1.0, nodes)
+        y = np.zeros((13 * self.nseg, s.size))
+        q0 = rot_to_quat(self.R0)
+        for k in range(self.nseg):
+            X = self.cuts[k] + s * (self.cuts[k + 1] - self.cuts[k])
+            y[13 * k:13 * k + 3] = self.p0[:, None] + self.R0[:, :1] * X
+            y[13 * k + 3:13 * k + 7] = q0[:, None]
+        sol = None
+        for lam in steps:
+            sol = solve_bvp(lambda s, y: self.ode(s, y, lam), lambda a, b: self.bc(a, b, lam),
+                            s, y, tol=tol, max_nodes=20000)
+            if sol.status != 0:
+                raise RuntimeError(f"reference BVP failed at load factor {lam}: {sol.message}")
+            s, y = sol.x, sol.y
+        self.solution = sol
+        return self
+
+    def position(self, X):
+        k = int(np.clip(np.searchsorted(self.cuts, X, side="right") - 1, 0, self.nseg - 1))
+        a, b = self.cuts[k], self.cuts[k + 1]
+        return self.solution.sol((X - a) / (b - a))[13 * k:13 * k + 3]
+
+    def markers(self):
+        out = {}
+        for m in self.robot.markers:
+            k = int(np.clip(np.searchsorted(self.cuts, m.X, side="right") - 1, 0, self.nseg - 1))
+            a, b = self.cuts[k], self.cuts[k + 1]
+            Y = self.solution.sol((m.X - a) / (b - a))[13 * k:13 * k + 13]
+            out[m.name] = Y[:3] + quat_to_rot(Y[3:7, None])[0] @ np.array(m.offset)
+        return out

@@ -1,0 +1,54 @@
+"""The command line contract of SPEC §4 for solve and fk (issue 2, test 8)."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from conftest import PROTOTYPE
+
+KEYS = {"q", "tensions", "displacements", "markers", "backbone", "converged", "iterations",
+        "residual"}
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "tendonsense.cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize("args", [
+    ("solve", PROTOTYPE, "--tension", "t1=2.0", "--point-force", "0.25,0,0,-0.2"),
+    ("fk", PROTOTYPE, "--displacement", "t1=-0.01"),
+])
+def test_json_has_spec_keys(args):
+    p = run(*args, "--json")
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout)
+    assert KEYS <= set(out)
+    assert out["converged"] is True
+    assert set(out["markers"]) == {"mid", "three_quarter", "tip"}
+    assert len(out["backbone"]) >= 50 and all(len(p) == 3 for p in out["backbone"])
+    assert len(out["q"]) == 15
+    if args[0] == "fk":
+        assert out["displacements"]["t1"] == pytest.approx(-0.01, abs=1e-9)
+        assert out["tensions"]["t1"] > 0
+
+
+def test_bad_robot_file(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(PROTOTYPE.read_text().replace("length = 0.25", "length = -0.25"))
+    p = run("solve", bad, "--tension", "t1=1", "--json")
+    assert p.returncode != 0
+    assert p.stdout == ""
+    assert len(p.stderr.strip().splitlines()) == 1
+    assert "rod.length" in p.stderr and "> 0" in p.stderr
+
+
+@pytest.mark.parametrize("flag", [("--tension", "t1"), ("--tension", "t9=1"),
+                                  ("--point-force", "0.1,0,0"), ("--bogus",)])
+def test_bad_flag(flag):
+    p = run("solve", PROTOTYPE, *flag, "--json")
+    assert p.returncode != 0
+    assert p.stdout == ""
+    assert len(p.stderr.strip().splitlines()) == 1, p.stderr

@@ -1,0 +1,79 @@
+"""Exact identities of the discrete model (issue 2, tests 3, 4, 5)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from tendonsense import lie, tendons
+from tendonsense.forward import model_for, solve
+from tendonsense.kinematics import grid_frames
+
+
+@pytest.fixture(scope="module")
+def frictionless(prototype):
+    return prototype.with_parameters(friction=0.0)
+
+
+def random_q(model, seed, scale=2.0):
+    return jnp.asarray(np.random.default_rng(seed).normal(scale=scale, size=model.nq))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_frictionless_actuation_is_minus_tendon_length_gradient(frictionless, seed):
+    model = model_for(frictionless)
+    q = random_q(model, seed)
+    B = np.asarray(tendons.actuation(model, grid_frames(model, q), jnp.zeros(3)))
+    dy = np.asarray(jax.jacfwd(lambda q: tendons.length_changes(model, grid_frames(model, q)))(q))
+    assert np.abs(B).max() > 1e-3
+    np.testing.assert_allclose(B, -dy.T, rtol=0, atol=1e-9 * np.abs(B).max())
+
+
+def test_friction_breaks_the_identity(prototype):
+    """The check above can fail: with μ > 0 B is no longer a gradient."""
+    model = model_for(prototype)
+    q = random_q(model, 0)
+    B = np.asarray(tendons.actuation(model, grid_frames(model, q), jnp.full(3, 0.4)))
+    dy = np.asarray(jax.jacfwd(lambda q: tendons.length_changes(model, grid_frames(model, q)))(q))
+    assert np.abs(B + dy.T).max() > 1e-3 * np.abs(B).max()
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_body_jacobian_matches_finite_differences_of_pose(prototype, seed):
+    model = model_for(prototype)
+    q = random_q(model, seed)
+    grid = grid_frames(model, q)
+    eps = 1e-6
+    for j in range(model.nq):
+        dq = jnp.zeros(model.nq).at[j].set(eps)
+        gp, gm = grid_frames(model, q + dq).g, grid_frames(model, q - dq).g
+        for n in range(0, len(model.nodes), 5):
+            dg = (np.asarray(gp[n]) - np.asarray(gm[n])) / (2 * eps)
+            eta = np.asarray(lie.vee(jnp.asarray(np.linalg.inv(np.asarray(grid.g[n])) @ dg)))
+            np.testing.assert_allclose(np.asarray(grid.J[n][:, j]), eta, atol=1e-6)
+
+
+def test_exp_and_dexp_near_zero_rotation():
+    """Series and closed forms meet continuously; dexp is the derivative of exp."""
+    rng = np.random.default_rng(7)
+    for theta in (0.0, 1e-9, 0.0999, 0.1001, 1.3):
+        w = rng.normal(size=3)
+        w = theta * w / np.linalg.norm(w)
+        Om = jnp.asarray(np.r_[w, rng.normal(size=3)])
+        dOm = jnp.asarray(rng.normal(size=6))
+        _, tangent = jax.jvp(lie.expmap, (Om,), (dOm,))
+        body = lie.vee(lie.inverse(lie.expmap(Om)) @ tangent)
+        expected = lie.Ad_inv(lie.expmap(Om)) @ lie.dexp(Om) @ dOm
+        np.testing.assert_allclose(body, expected, atol=1e-12)
+
+
+def test_basis_convergence_moves_loaded_tip_less_than_1mm(prototype):
+    loads = [(0.25, (0.0, 0.2, -0.5))]
+    tension = {"t1": 2.0, "t3": 1.0}
+    base = solve(prototype, tension, loads)
+    richer = prototype.replace(strain=tuple((m, d + 2) for m, d in prototype.strain))
+    finer = solve(richer, tension, loads)
+    assert base.converged and finer.converged
+    moved = np.linalg.norm(base.markers["tip"] - finer.markers["tip"])
+    assert moved < 1e-3
+    assert np.linalg.norm(base.markers["tip"] - np.array([0.25, 0, 0])) > 0.02  # really loaded

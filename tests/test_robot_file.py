@@ -1,0 +1,71 @@
+"""Robot-file loading and validation (SPEC §3)."""
+
+import numpy as np
+import pytest
+
+from conftest import PROTOTYPE, ROOT
+from tendonsense.forward import solve
+from tendonsense.robot import RobotFileError, load_robot, parse_robot, robot_to_toml
+
+TEXT = PROTOTYPE.read_text()
+
+
+def bad(tmp_path, old, new):
+    p = tmp_path / "r.toml"
+    assert old in TEXT
+    p.write_text(TEXT.replace(old, new, 1))
+    with pytest.raises(RobotFileError) as e:
+        load_robot(p)
+    msg = str(e.value)
+    assert "\n" not in msg
+    return msg
+
+
+@pytest.mark.parametrize("old,new,expect", [
+    ("length = 0.25", "length = -0.25", "rod.length"),
+    ("length = 0.25", "length = nan", "finite"),
+    ("young_modulus = 1.0e6", "young_modulus = 'soft'", "rod.young_modulus"),
+    ("density = 1340.0", "density = 1340.0\ncolour = 'red'", "unknown key"),
+    ("disks = 9", "disks = [0.0, 0.1, 0.05, 0.25]", "strictly increasing"),
+    ("offset_base = [0, 0.014]", "offset_base = [0, 0.04]", "reachable radius"),
+    ("bending_y = 4", "bending_y = -1", "strain.bending_y"),
+    ('name = "mid"', 'name = "tip"', "two markers"),
+    ("X = 0.125", "X = 0.3", "marker[0].X"),
+    ("[gravity]\nacceleration = [0.0, 0.0, -9.81]", "[gravity]\nacceleration = [0.0, -9.81]",
+     "gravity.acceleration"),
+])
+def test_bad_values_name_key_and_reason(tmp_path, old, new, expect):
+    assert expect in bad(tmp_path, old, new)
+
+
+def test_missing_key(tmp_path):
+    assert "rod.young_modulus: missing" in bad(tmp_path, "young_modulus = 1.0e6\n", "")
+
+
+def test_bad_rotation():
+    with pytest.raises(RobotFileError, match="base.rotation"):
+        parse_robot({"rod": {"length": 1, "radius": [0.1, 0.1], "young_modulus": 1,
+                             "poisson_ratio": 0.3, "density": 1},
+                     "base": {"rotation": [[1, 0, 0], [0, 2, 0], [0, 0, 1]]}})
+
+
+def test_round_trip_through_toml(prototype, tmp_path):
+    p = tmp_path / "again.toml"
+    p.write_text(robot_to_toml(prototype))
+    assert load_robot(p) == prototype
+
+
+def test_soromox_tentacle_loads_and_hangs():
+    """Piecewise radius, base rotation and off-centre markers (second robot)."""
+    robot = load_robot(ROOT / "examples" / "soromox_tentacle.toml")
+    assert len(robot.rod.radius_knots) == 3
+    assert robot.tendons[0].disks[-1] == pytest.approx(0.305)
+    res = solve(robot)
+    assert res.converged
+    # hanging straight down under gravity: the tip marker sits at its offset below the base
+    tip = res.markers["m4"]
+    assert tip[2] < -0.35 and abs(tip[1]) < 1e-9
+    np.testing.assert_allclose(res.backbone[-1][:2], [0, 0], atol=1e-9)
+    pulled = solve(robot, {"t1": 3.08})
+    assert pulled.converged
+    assert np.linalg.norm(pulled.markers["m4"] - tip) > 0.02
