@@ -67,7 +67,54 @@ def build_parser() -> argparse.ArgumentParser:
                    metavar="NAME=M", help="tendon length change (m, negative = pulled in)")
     p.add_argument("--tension", action="append", default=[], type=_assignment,
                    metavar="NAME=N", help="tension of a tendon whose length is not given")
+
+    p = sub.add_parser("estimate", help="estimation (eq. 17): tendon lengths and tensions -> "
+                                        "shape and unknown load magnitudes")
+    _common(p)
+    p.add_argument("--displacement", action="append", default=[], type=_assignment,
+                   metavar="NAME=M", help="measured tendon length change (m)")
+    p.add_argument("--tension", action="append", default=[], type=_assignment,
+                   metavar="NAME=N", help="measured tendon tension (N)")
+    p.add_argument("--unknown", action="append", default=[], type=_unknown, required=True,
+                   metavar="X,DX,DY,DZ|gravity",
+                   help="unknown load: a point force of unknown magnitude along global "
+                        "(DX, DY, DZ) at X, or the gravity scale")
+    p.add_argument("--readings", metavar="READINGS.csv", help="estimate every row of a log")
+    p.add_argument("-o", "--output", metavar="OUT.csv", help="output file for --readings")
+    p.add_argument("--length-noise", type=_positive, default=1e-4, metavar="M",
+                   help="1-σ tendon length noise for the uncertainty band (default 1e-4 m)")
+    p.add_argument("--tension-noise", type=_positive, default=0.025 / 3, metavar="FRACTION",
+                   help="1-σ relative tension noise (default 0.025/3)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("experiments", help="re-run the paper's experiments (Tables II-IV)")
+    p.add_argument("csv", nargs="?", default="examples/paper_experiments.csv",
+                   help="experiments CSV (default: examples/paper_experiments.csv)")
+    p.add_argument("--robot", default="examples/paper_prototype.toml",
+                   help="robot file (default: examples/paper_prototype.toml)")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     return parser
+
+
+def _unknown(text: str):
+    from .estimation import GravityUnknown, PointForceUnknown
+    if text.strip().lower() == "gravity":
+        return GravityUnknown()
+    X, *d = _numbers(4, "X,DX,DY,DZ or gravity")(text)
+    try:
+        return PointForceUnknown(X, tuple(d))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (v > 0 and v < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return v
 
 
 def _point_forces(args):
@@ -91,11 +138,73 @@ def _print_result(result, as_json: bool, title: str):
         print(f"  marker {name}: [{', '.join(f'{v:+.4f}' for v in p)}] m")
 
 
+def _estimate(args, robot):
+    from .estimation import Noise, estimate
+    noise = Noise(args.length_noise, args.tension_noise)
+    if args.readings is None:
+        if args.output:
+            raise UsageError("tendonsense estimate: -o/--output goes with --readings")
+        result = estimate(robot, dict(args.displacement), dict(args.tension), args.unknown,
+                          _point_forces(args), noise)
+        _print_result(result, args.json, "estimation")
+        return result.converged
+    from . import readings as rd
+    if args.displacement or args.tension:
+        raise UsageError("tendonsense estimate: --readings replaces --displacement/--tension")
+    if not args.output:
+        raise UsageError("tendonsense estimate: --readings needs -o OUT.csv")
+    measured, samples = rd.read_readings(args.readings, robot)
+    results = rd.estimate_readings(robot, measured, samples, args.unknown, _point_forces(args),
+                                   noise, progress=not args.quiet)
+    for s in samples:
+        if s.error:
+            print(f"tendonsense: {args.readings}: row {s.row} skipped: {s.error}",
+                  file=sys.stderr)
+    header, rows = rd.output_rows(robot, samples, results, len(args.unknown))
+    rd.write_csv_atomic(args.output, header, rows)
+    ok = [r for r in results if r is not None and r.converged]
+    summary = {"samples": len(samples), "converged": len(ok),
+               "skipped": sum(r is None for r in results), "output": str(args.output)}
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"estimated {len(samples)} samples: {len(ok)} converged, "
+              f"{summary['skipped']} skipped; wrote {args.output}")
+    return len(ok) == len(samples)
+
+
+def _experiments(args) -> bool:
+    from . import experiments
+    robot = load_robot(args.robot)
+    rows = experiments.run(robot, args.csv)
+    summary = experiments.summary(rows)
+    if args.json:
+        print(json.dumps({"rows": [{"case": r.case, "applied": r.applied.tolist(),
+                                    "estimate": None if r.ours is None else r.ours.tolist(),
+                                    "paper_estimate": None if r.paper is None else r.paper.tolist(),
+                                    "converged": r.converged} for r in rows], **summary}))
+        return summary["converged"] == summary["rows"]
+    print(f"{'case':<18} {'applied':>22} {'ours':>22} {'paper':>22} {'err ours':>9} "
+          f"{'err paper':>9}")
+    fmt = lambda v: "-" if v is None else " ".join(f"{x:.4f}" for x in v)  # noqa: E731
+    for r in rows:
+        print(f"{r.case:<18} {fmt(r.applied):>22} {fmt(r.ours):>22} {fmt(r.paper):>22} "
+              f"{r.error(r.ours):>9.1%} {r.error(r.paper):>9.1%}")
+    print(f"mean relative error: ours {summary['mean_relative_error_ours']:.1%}, paper "
+          f"{summary['mean_relative_error_paper']:.1%}; {summary['converged']}/"
+          f"{summary['rows']} rows converged")
+    return summary["converged"] == summary["rows"]
+
+
 def main(argv=None) -> int:
     try:
         args = build_parser().parse_args(argv)
+        if args.command == "experiments":
+            return 0 if _experiments(args) else 3
         robot = load_robot(args.robot)
         from . import forward
+        if args.command == "estimate":
+            return 0 if _estimate(args, robot) else _not_converged()
         if args.command == "solve":
             result = forward.solve(robot, dict(args.tension), _point_forces(args))
             _print_result(result, args.json, "forward statics")
@@ -106,13 +215,15 @@ def main(argv=None) -> int:
     except UsageError as exc:
         print(exc, file=sys.stderr)
         return 2
-    except (RobotFileError, ValueError) as exc:
+    except (RobotFileError, ValueError, OSError) as exc:
         print(f"tendonsense: error: {exc}", file=sys.stderr)
         return 1
-    if not result.converged:
-        print("tendonsense: the solve did not converge", file=sys.stderr)
-        return 3
-    return 0
+    return 0 if result.converged else _not_converged()
+
+
+def _not_converged() -> int:
+    print("tendonsense: not every solve converged (marked converged = false)", file=sys.stderr)
+    return 3
 
 
 if __name__ == "__main__":

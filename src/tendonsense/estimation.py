@@ -1,0 +1,254 @@
+"""Shape and force estimation from tendon length changes and tensions (eq. 17).
+
+Unknowns are magnitudes: a point force of unknown size along a known global direction at a
+known X (:class:`PointForceUnknown`), or the scale of the distributed gravity load
+(:class:`GravityUnknown`). With as many measured tendons as unknowns the problem is square and
+solved by the core Newton solver (equilibrium + tendon lengths); with more tendons it is the
+least-squares problem of eq. 17, solved by Levenberg–Marquardt on the magnitudes with the
+equilibrium as an exact constraint (implicit differentiation, no finite differences).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Mapping, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .forward import check_point_forces, finite, make_result, model_for, tendon_vector
+from .model import Model
+from .result import Result
+from .robot import Robot
+from .statics import (Drive, NewtonResult, Params, Unknowns, shape_outputs, solve_system,
+                      terms)
+
+
+@dataclass(frozen=True)
+class PointForceUnknown:
+    """A point force of unknown magnitude (N) along the global unit ``direction`` at ``X``."""
+
+    X: float
+    direction: tuple[float, float, float]
+
+    def __post_init__(self):
+        d = np.asarray(self.direction, float)
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
+            raise ValueError(f"unknown force at X = {self.X}: direction must be 3 finite "
+                             f"numbers, not all zero")
+        finite("unknown force X", self.X)
+        object.__setattr__(self, "direction", tuple(d / np.linalg.norm(d)))
+
+
+@dataclass(frozen=True)
+class GravityUnknown:
+    """The unknown scale of the robot's gravity (1 = the robot file's acceleration)."""
+
+
+@dataclass(frozen=True)
+class Noise:
+    """Sensor noise (1 σ) for the uncertainty band: lengths in m, tensions relative."""
+
+    length: float = 1e-4
+    tension: float = 0.025 / 3
+
+
+Unknown = PointForceUnknown | GravityUnknown
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """An estimation problem's fixed structure: the model, measured tendons, how the
+    unknowns enter and the known drive (without the measurements)."""
+
+    robot: Robot
+    model: Model
+    measured: tuple[int, ...]
+    unknowns: Unknowns
+    known_forces: np.ndarray
+    gravity: np.ndarray
+
+    @property
+    def n_z(self) -> int:
+        return self.unknowns.gravity.shape[0]
+
+    def drive(self, tensions, targets) -> Drive:
+        return Drive(jnp.asarray(tensions, float), jnp.asarray(self.known_forces),
+                     jnp.asarray(self.gravity), jnp.asarray(targets, float))
+
+
+def problem(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
+            point_forces=()) -> Problem:
+    """Set up the estimation of ``unknowns`` from the tendons named in ``measured``."""
+    if not unknowns:
+        raise ValueError("estimation needs at least one unknown load")
+    for name in measured:
+        if name not in robot.tendon_names:
+            raise ValueError(f"displacement {name}: no such tendon (robot has "
+                             f"{', '.join(robot.tendon_names) or 'none'})")
+    n_a, n_p = len(measured), len(unknowns)
+    if n_a < n_p:
+        raise ValueError(f"{n_p} unknown load magnitude{'s' if n_p > 1 else ''} need at least "
+                         f"{n_p} tendons with measured length and tension; got {n_a} "
+                         f"(n_a >= n_p, eq. 17)")
+    if sum(isinstance(u, GravityUnknown) for u in unknowns) > 1:
+        raise ValueError("gravity can be unknown only once")
+    X_known, F_known = check_point_forces(robot, point_forces)
+    forces = [u for u in unknowns if isinstance(u, PointForceUnknown)]
+    for u in forces:
+        if not 0.0 <= u.X <= robot.rod.length:
+            raise ValueError(f"unknown force: X = {u.X:g} m is outside the rod "
+                             f"[0, {robot.rod.length:g}]")
+    model = model_for(robot, X_known + tuple(u.X for u in forces))
+    n_known = len(X_known)
+    Fz = np.zeros((n_p, n_known + len(forces), 3))
+    az = np.zeros((n_p, 3))
+    gravity = np.array(robot.gravity, float)
+    k = 0
+    for i, u in enumerate(unknowns):
+        if isinstance(u, GravityUnknown):
+            az[i] = gravity
+            gravity = np.zeros(3)
+        else:
+            Fz[i, n_known + k] = u.direction
+            k += 1
+    F = np.concatenate([F_known, np.zeros((len(forces), 3))])
+    unk = Unknowns(jnp.zeros((len(robot.tendons), n_p)), jnp.asarray(Fz), jnp.asarray(az))
+    idx = tuple(robot.tendon_names.index(n) for n in measured)
+    return Problem(robot, model, idx, unk, F, gravity)
+
+
+@lru_cache(maxsize=None)
+def _jacobians_fn(model: Model, measured: tuple[int, ...]):
+    """``(∂E/∂q, ∂E/∂z, ∂E/∂T, ∂y_meas/∂q)`` for the unscaled equilibrium ``E = Kq − BT − F``."""
+
+    def parts(q, z, T, drive, unknowns, params):
+        t = terms(model, q, z, drive._replace(tensions=T), unknowns, params, 1.0)
+        E = params.young_modulus * (jnp.asarray(model.K_unit) @ q) - t.B @ t.tensions - t.external
+        return E, t.y[np.array(measured, int)]
+
+    def jac(q, z, T, drive, unknowns, params):
+        (Eq, Ez, ET), (yq, _, _) = jax.jacfwd(parts, argnums=(0, 1, 2))(q, z, T, drive, unknowns,
+                                                                     params)
+        return Eq, Ez, ET, yq
+
+    return jax.jit(jac)
+
+
+def _reduced(prob: Problem, x, drive, params):
+    """Reduced Jacobians of the measured lengths w.r.t. the magnitudes and the tensions, with
+    the equilibrium eliminated: ``dy/dz = −y_q E_q⁻¹ E_z``, ``dy/dT = −y_q E_q⁻¹ E_T``."""
+    nq = prob.model.nq
+    Eq, Ez, ET, yq = (np.asarray(a) for a in _jacobians_fn(prob.model, prob.measured)(
+        jnp.asarray(x[:nq]), jnp.asarray(x[nq:]), drive.tensions, drive, prob.unknowns, params))
+    sol = np.linalg.solve(Eq, np.concatenate([Ez, ET], axis=1))
+    return -yq @ sol[:, :prob.n_z], -yq @ sol[:, prob.n_z:]
+
+
+def _least_squares(prob: Problem, drive: Drive, params: Params, x0, tol: float):
+    """min ‖y(q) − y_meas‖² over the magnitudes z, q solving equilibrium (eq. 17), by
+    Levenberg–Marquardt; returns (x, converged, iterations, newton result, misfit)."""
+    nq, n_z = prob.model.nq, prob.n_z
+    statics_unknowns = Unknowns.none(prob.model)
+    y_meas = np.asarray(drive.targets)
+    sel = list(prob.measured)
+
+    def equilibrium(z, q0):
+        d = drive._replace(
+            forces=drive.forces + jnp.tensordot(jnp.asarray(z), prob.unknowns.forces, axes=1),
+            gravity=drive.gravity + jnp.asarray(z) @ prob.unknowns.gravity,
+            targets=jnp.zeros(0))
+        res = solve_system(prob.model, (), d, statics_unknowns, params, q0)
+        return res, shape_outputs(prob.model, res.x)[2][sel] - y_meas
+
+    z = np.zeros(n_z) if x0 is None else np.asarray(x0[nq:], float)
+    res, e = equilibrium(z, None if x0 is None else x0[:nq])
+    total, damping = int(res.iterations), 1e-3
+    converged = False
+    for _ in range(100):
+        if not bool(res.converged):
+            break
+        Jz, _ = _reduced(prob, np.concatenate([np.asarray(res.x), z]), drive, params)
+        g = Jz.T @ e
+        scale = np.linalg.norm(Jz) * np.linalg.norm(e)
+        if np.linalg.norm(e) <= 1e-13 or np.linalg.norm(g) <= tol * scale:
+            converged = True
+            break
+        H = Jz.T @ Jz
+        cost = e @ e
+        improved = False
+        while damping < 1e12:
+            dz = np.linalg.solve(H + damping * np.diag(np.diag(H)), -g)
+            r2, e2 = equilibrium(z + dz, res.x)
+            total += int(r2.iterations)
+            if bool(r2.converged) and e2 @ e2 < cost:
+                small = np.linalg.norm(dz) <= 1e-12 * (1 + np.linalg.norm(z))
+                z, res, e, damping = z + dz, r2, e2, max(damping / 4, 1e-9)
+                improved = True
+                if small:
+                    converged = True
+                break
+            damping *= 4
+        if not improved or converged:
+            # no decrease possible: at a minimum if the gradient is already tiny
+            converged = converged or np.linalg.norm(g) <= 1e-6 * max(scale, 1e-300)
+            break
+    x = np.concatenate([np.asarray(res.x), z])
+    return x, converged and bool(res.converged), total, res, float(np.linalg.norm(e))
+
+
+def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping[str, float],
+             unknowns: Sequence[Unknown], point_forces=(), noise: Noise = Noise(),
+             x0=None) -> Result:
+    """Estimate the shape and the magnitudes of ``unknowns`` from measured tendon
+    ``displacements`` (m) and ``tensions`` (N), by tendon name (eq. 17).
+
+    ``x0`` (a previous result's ``extra['x']``) warm-starts the solve. The result carries
+    ``magnitudes`` (N for point forces, a scale for gravity), their 1-σ band ``sigma`` for
+    the sensor ``noise`` and ``sensitivity``: ∂magnitudes/∂measurement per measurement.
+    """
+    prob = problem(robot, list(displacements), unknowns, point_forces)
+    return estimate_problem(prob, displacements, tensions, noise, x0)
+
+
+def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Noise(),
+                     x0=None) -> Result:
+    robot, model = prob.robot, prob.model
+    T = tendon_vector(robot, tensions, "tension")
+    y_all = tendon_vector(robot, displacements, "displacement")
+    drive = prob.drive(T, y_all[list(prob.measured)])
+    params = Params.of(model)
+    tol = robot.numerics.tolerance
+    if len(prob.measured) == prob.n_z:
+        res = solve_system(model, prob.measured, drive, prob.unknowns, params, x0)
+        x, converged, iterations, misfit = np.asarray(res.x), bool(res.converged), \
+            int(res.iterations), 0.0
+    else:
+        x, converged, iterations, res, misfit = _least_squares(prob, drive, params, x0, tol)
+    z = x[model.nq:]
+    sens, sigma = _uncertainty(prob, x, drive, params, T, noise)
+    return make_result(model, x, T, NewtonResult(x, converged, iterations, res.residual),
+                       magnitudes=z, sigma=sigma, sensitivity=sens,
+                       extra={"x": x, "length_misfit": misfit})
+
+
+def _uncertainty(prob: Problem, x, drive, params, T, noise: Noise):
+    """First-order sensitivity of the magnitudes to every measurement and the 1-σ band:
+    ``dz/dm = −(∂e/∂z)⁺ ∂e/∂m`` with ``e = y(q(z, T)) − y_meas`` (exact for square problems,
+    Gauss–Newton for least squares)."""
+    names = prob.robot.tendon_names
+    Jz, JT = _reduced(prob, x, drive, params)
+    pinv = np.linalg.pinv(Jz)
+    dz_dy = pinv  # ∂e/∂y_meas = −I
+    dz_dT = -pinv @ JT
+    sens, var = {}, np.zeros(prob.n_z)
+    for k, j in enumerate(prob.measured):
+        sens[f"displacement_{names[j]}"] = dz_dy[:, k]
+        var += (dz_dy[:, k] * noise.length) ** 2
+    for j, name in enumerate(names):
+        if T[j] != 0 or j in prob.measured:
+            sens[f"tension_{name}"] = dz_dT[:, j]
+            var += (dz_dT[:, j] * noise.tension * abs(T[j])) ** 2
+    return sens, np.sqrt(var)

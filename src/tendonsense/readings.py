@@ -1,0 +1,183 @@
+"""CSV files of tendon readings (SPEC §4): reading a log, estimating over it, writing the
+result atomically."""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .estimation import Noise, Unknown, estimate_problem, problem
+from .result import Result
+from .robot import Robot
+
+AXES = ("x", "y", "z")
+
+
+class ReadingsError(ValueError):
+    """A readings file that cannot be used at all (bad header, unreadable)."""
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One row of a readings file; ``error`` names the bad column of a row that is skipped."""
+
+    row: int  # 1-based data row number (the header is row 0)
+    time: float | None
+    tensions: dict[str, float]
+    displacements: dict[str, float]
+    markers: dict[str, np.ndarray]
+    error: str | None = None
+
+
+def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sample]]:
+    """Parse READINGS.csv: ``time`` (optional), ``tension_<name>``, ``displacement_<name>``,
+    optional ``marker_<name>_x/_y/_z``. Returns (measured tendon names, samples)."""
+    path = Path(path)
+    try:
+        with open(path, newline="") as fh:
+            rows = list(csv.reader(fh))
+    except OSError as exc:
+        raise ReadingsError(f"{path}: cannot read ({exc.strerror})") from None
+    if not rows:
+        raise ReadingsError(f"{path}: empty file, expected a header row")
+    header = [h.strip() for h in rows[0]]
+    tendons, markers = robot.tendon_names, robot.marker_names
+    measured, seen = [], set()
+    for col in header:
+        if col in seen:
+            raise ReadingsError(f"{path}: column {col!r} appears twice")
+        seen.add(col)
+        kind, _, name = col.partition("_")
+        if col == "time":
+            continue
+        if kind in ("tension", "displacement"):
+            if name not in tendons:
+                raise ReadingsError(f"{path}: column {col!r}: no tendon {name!r} in the robot")
+            if kind == "displacement":
+                measured.append(name)
+        elif kind == "marker" and name[-2:] in ("_x", "_y", "_z") and name[:-2] in markers:
+            continue
+        else:
+            raise ReadingsError(f"{path}: column {col!r} is not time, tension_<tendon>, "
+                                f"displacement_<tendon> or marker_<marker>_x/_y/_z")
+    if not measured:
+        raise ReadingsError(f"{path}: no displacement_<tendon> column")
+    for name in measured:
+        if f"tension_{name}" not in header:
+            raise ReadingsError(f"{path}: displacement_{name} has no tension_{name} column")
+    marker_names = [m for m in markers if f"marker_{m}_x" in header]
+    for m in marker_names:
+        for a in AXES:
+            if f"marker_{m}_{a}" not in header:
+                raise ReadingsError(f"{path}: marker {m!r} needs columns _x, _y and _z")
+    samples = []
+    for i, raw in enumerate(rows[1:], start=1):
+        if not any(c.strip() for c in raw):
+            continue
+        values, error = {}, None
+        if len(raw) != len(header):
+            error = f"has {len(raw)} fields, the header has {len(header)}"
+        else:
+            for col, text in zip(header, raw):
+                try:
+                    v = float(text)
+                except ValueError:
+                    v = math.nan
+                if not math.isfinite(v):
+                    error = f"column {col}: {'missing' if not text.strip() else repr(text)} value"
+                    break
+                values[col] = v
+        if error:
+            samples.append(Sample(i, None, {}, {}, {}, error))
+            continue
+        samples.append(Sample(
+            i, values.get("time"),
+            {n: values[f"tension_{n}"] for n in tendons if f"tension_{n}" in values},
+            {n: values[f"displacement_{n}"] for n in measured},
+            {m: np.array([values[f"marker_{m}_{a}"] for a in AXES]) for m in marker_names}))
+    return measured, samples
+
+
+def estimate_readings(robot: Robot, measured: Sequence[str], samples: Sequence[Sample],
+                      unknowns: Sequence[Unknown], point_forces=(), noise: Noise = Noise(),
+                      progress: bool = False) -> list[Result | None]:
+    """Estimate every sample, each warm-started from the last converged one; a bad sample
+    gives None and the run goes on."""
+    prob = problem(robot, measured, unknowns, point_forces)
+    out, x0 = [], None
+    bar = _progress(len(samples), progress)
+    for s in samples:
+        if s.error is None:
+            res = estimate_problem(prob, s.displacements, s.tensions, noise, x0)
+            if not res.converged:  # a bad warm start must not spoil the sample
+                res = estimate_problem(prob, s.displacements, s.tensions, noise, None)
+            if res.converged:
+                x0 = res.extra["x"]
+            out.append(res)
+        else:
+            out.append(None)
+        bar.update(1)
+    bar.close()
+    return out
+
+
+def _progress(total: int, enabled: bool):
+    from tqdm import tqdm
+    return tqdm(total=total, disable=not (enabled and sys.stderr.isatty()), file=sys.stderr,
+                unit="sample", leave=False)
+
+
+def output_rows(robot: Robot, samples, results, n_unknowns: int):
+    """Header and rows of OUT.csv (SPEC §4), uncertainty included."""
+    markers = robot.marker_names
+    with_shape = any(s.markers for s in samples)
+    header = (["row", "time"] + [f"magnitude_{i + 1}" for i in range(n_unknowns)]
+              + [f"sigma_{i + 1}" for i in range(n_unknowns)]
+              + [f"marker_{m}_{a}" for m in markers for a in AXES] + ["converged"]
+              + (["shape_rmse"] if with_shape else []) + ["note"])
+    rows = []
+    for s, r in zip(samples, results):
+        t = "" if s.time is None else repr(s.time)
+        if r is None:
+            rows.append([s.row, t] + [""] * (2 * n_unknowns + 3 * len(markers))
+                        + ["false"] + ([""] if with_shape else []) + [f"skipped: {s.error}"])
+            continue
+        row = [s.row, t] + [repr(float(v)) for v in r.magnitudes] + \
+              [repr(float(v)) for v in r.sigma]
+        row += [repr(float(v)) for m in markers for v in r.markers[m]]
+        row.append("true" if r.converged else "false")
+        if with_shape:
+            row.append(repr(shape_rmse(r, s.markers)) if s.markers else "")
+        row.append("" if r.converged else "did not converge")
+        rows.append(row)
+    return header, rows
+
+
+def shape_rmse(result: Result, measured: dict[str, np.ndarray]) -> float:
+    """Root-mean-square distance (m) between estimated and measured markers."""
+    d = [np.sum((result.markers[m] - p) ** 2) for m, p in measured.items()]
+    return float(np.sqrt(np.mean(d)))
+
+
+def write_csv_atomic(path: str | Path, header, rows):
+    """Write a CSV next to its destination and move it into place, so that a reader never
+    sees a partial file."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or ".")
+    try:
+        with os.fdopen(fd, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(header)
+            w.writerows(rows)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
