@@ -23,6 +23,7 @@ _vad = jax.vmap(lie.ad)
 _vexp = jax.vmap(lie.expmap)
 _vdexp = jax.vmap(lie.dexp)
 _vAd_inv = jax.vmap(lie.Ad_inv)
+_vAd = jax.vmap(lie.Ad)
 
 
 class Frames(NamedTuple):
@@ -46,9 +47,8 @@ def magnus(q, h, Phi1, Phi2):
 
 
 def _step(Omega, dOmega):
-    """exp(Ω), and the Jacobian map of one step applied as (A, Ad⁻¹) with J' = Ad⁻¹ (J + A)."""
-    E = _vexp(Omega)
-    return E, _vdexp(Omega) @ dOmega, _vAd_inv(E)
+    """exp(Ω) and ``A = dexp_Ω ∂Ω/∂q`` of every step: ``J' = Ad_{exp Ω}⁻¹ (J + A)``."""
+    return _vexp(Omega), _vdexp(Omega) @ dOmega
 
 
 def grid_frames(model: Model, q, points: PointSet | None = None):
@@ -59,26 +59,23 @@ def grid_frames(model: Model, q, points: PointSet | None = None):
     if points is not None:
         h, Phi1, Phi2 = (np.concatenate([a, b]) for a, b in
                          ((h, points.h), (Phi1, points.Phi1), (Phi2, points.Phi2)))
-    E, A, Adi = _step(*magnus(q, jnp.asarray(h), Phi1, Phi2))
-    grid = _chain(model, q, E[:n], A[:n], Adi[:n])
+    E, A = _step(*magnus(q, jnp.asarray(h), Phi1, Phi2))
+    grid = _chain(model, E[:n], A[:n])
     if points is None:
         return grid
     g0, J0 = grid.g[points.start], grid.J[points.start]
-    return grid, Frames(g0 @ E[n:], Adi[n:] @ (J0 + A[n:]))
+    return grid, Frames(g0 @ E[n:], _vAd_inv(E[n:]) @ (J0 + A[n:]))
 
 
-def _chain(model, q, E, A, Adi) -> Frames:
-    g0 = jnp.asarray(model.base)
-    J0 = jnp.zeros((6, model.nq), q.dtype)
-
-    def body(carry, x):
-        g, J = carry
-        Ei, Ai, Adi_i = x
-        nxt = (g @ Ei, Adi_i @ (J + Ai))
-        return nxt, nxt
-
-    _, (g, J) = jax.lax.scan(body, (g0, J0), (E, A, Adi))
-    return Frames(jnp.concatenate([g0[None], g]), jnp.concatenate([J0[None], J]))
+def _chain(model, E, A) -> Frames:
+    """Recursion in closed form: with ``G_i = E_0 ⋯ E_{i−1}`` (a parallel prefix product),
+    ``Ad_{G_i} J_i = Σ_{k<i} Ad_{G_k} A_k`` (a cumulative sum)."""
+    eye = jnp.eye(4, dtype=E.dtype)[None]
+    G = jnp.concatenate([eye, jax.lax.associative_scan(jnp.matmul, E)])
+    AdG = _vAd(G)
+    C = jnp.cumsum(AdG[:-1] @ A, axis=0)
+    J = jnp.concatenate([jnp.zeros((1, 6, model.nq), E.dtype), _vAd_inv(G[1:]) @ C])
+    return Frames(jnp.asarray(model.base) @ G, J)
 
 
 def positions(frames: Frames, offsets=None) -> jax.Array:

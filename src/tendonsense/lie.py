@@ -13,14 +13,14 @@ import numpy as np
 _SMALL = 1e-2  # theta^2 below which the Taylor series are used (theta < 0.1)
 
 
-# skew(w)[i, j] = -ε_ijk w_k
-_LEVI = -np.array([[[int((i - j) * (j - k) * (k - i) / 2) for k in range(3)] for j in range(3)]
-                   for i in range(3)], float)
+# skew(w) = SIGN * [w, 0][INDEX]
+_INDEX = np.array([[3, 2, 1], [2, 3, 0], [1, 0, 3]])
+_SIGN = np.array([[0.0, -1.0, 1.0], [1.0, 0.0, -1.0], [-1.0, 1.0, 0.0]])
 
 
 def skew(w):
     """3-vector -> 3x3 skew-symmetric matrix, ``skew(a) @ b == cross(a, b)``."""
-    return jnp.einsum("ijk,k->ij", _LEVI, w)
+    return _SIGN * jnp.concatenate([w, jnp.zeros(1, w.dtype)])[_INDEX]
 
 
 def hat(xi):
