@@ -10,6 +10,8 @@ import argparse
 import json
 import sys
 
+import numpy as np
+
 from .robot import RobotFileError, load_robot
 
 
@@ -50,6 +52,17 @@ def _common(p: argparse.ArgumentParser):
                    type=_numbers(4, "X,FX,FY,FZ"),
                    help="known point force (global frame, N) at material abscissa X (m)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    p.add_argument("--plot", metavar="SHAPE.png", help="draw the 3-D shape with its forces")
+
+
+def _analysis(sub, name, help_text, robot_default):
+    p = sub.add_parser(name, help=help_text)
+    p.add_argument("--robot", default=robot_default, help=f"robot file (default: {robot_default})")
+    p.add_argument("-o", "--out-dir", default="tendonsense_results",
+                   help="folder for the table (CSV and JSON) and the figure (PNG)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -87,6 +100,24 @@ def build_parser() -> argparse.ArgumentParser:
                    help="1-σ relative tension noise (default 0.025/3)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
+    p = sub.add_parser("identify", help="identification (eq. 19): snapshots -> E, density, μ")
+    p.add_argument("robot", help="robot description file (TOML); its values are the start")
+    p.add_argument("--snapshots", required=True, metavar="SNAPSHOTS.csv")
+    p.add_argument("--param", action="append", choices=("young_modulus", "density", "friction"),
+                   help="parameter to fit (repeatable; default young_modulus and density)")
+    p.add_argument("-o", "--output", metavar="FITTED.toml", help="write the fitted robot file")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+    p = _analysis(sub, "sensitivity", "sensitivity to length, tension and friction errors "
+                  "(§IV, Fig. 3a and 3b)", "examples/paper_simulation.toml")
+    p.add_argument("--points", type=int, default=9, help="tendon length changes per force (3a)")
+    _analysis(sub, "resolution", "force resolution at the tension sensors' resolution (§IV)",
+              "examples/paper_simulation.toml")
+    p = _analysis(sub, "compare", "GVS vs 3D-PC vs 3D-PC+E on the paper's experiments "
+                  "(§V-B4, Fig. 6)", "examples/paper_prototype.toml")
+    p.add_argument("csv", nargs="?", default="examples/paper_experiments.csv",
+                   help="experiments CSV (default: examples/paper_experiments.csv)")
+
     p = sub.add_parser("experiments", help="re-run the paper's experiments (Tables II-IV)")
     p.add_argument("csv", nargs="?", default="examples/paper_experiments.csv",
                    help="experiments CSV (default: examples/paper_experiments.csv)")
@@ -121,6 +152,85 @@ def _point_forces(args):
     return [(pf[0], pf[1:]) for pf in args.point_force]
 
 
+def _plot_shape(args, robot, result, unknowns=()):
+    if not getattr(args, "plot", None):
+        return
+    from . import plotting
+    from .estimation import PointForceUnknown
+    forces = _point_forces(args)
+    if result.magnitudes is not None:
+        forces += [(u.X, result.magnitudes[i] * np.asarray(u.direction))
+                   for i, u in enumerate(unknowns) if isinstance(u, PointForceUnknown)]
+    plotting.shape(result, args.plot, robot.rod.length, forces, title=f"{robot.name}")
+
+
+class _Progress:
+    """A tqdm bar on stderr, shown on a terminal unless --quiet."""
+
+    def __init__(self, args, what):
+        from tqdm import tqdm
+        self.bar = tqdm(total=0, desc=what, file=sys.stderr, leave=False,
+                        disable=getattr(args, "quiet", False) or not sys.stderr.isatty())
+
+    def __call__(self, done, total):
+        self.bar.total = total
+        self.bar.n = done
+        self.bar.refresh()
+
+    def close(self):
+        self.bar.close()
+
+
+def _analysis_run(args):
+    from pathlib import Path
+
+    from . import analyses, plotting
+    from .readings import write_csv_atomic, write_text_atomic
+    robot = load_robot(args.robot)
+    out = Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    prog = _Progress(args, args.command)
+    files = []
+    if args.command == "sensitivity":
+        rows = analyses.sensitivity_single(robot, n_y=args.points, progress=prog)
+        entries = analyses.sensitivity_3d(robot, progress=prog)
+        summary = {"single_tendon": analyses.single_summary(rows),
+                   "three_tendons": analyses.summary_3d(entries)}
+        keys = sorted({k for r in rows for k in r})
+        write_csv_atomic(out / "sensitivity_single.csv", keys,
+                         [[r.get(k, "") for k in keys] for r in rows])
+        write_text_atomic(out / "sensitivity_3d.json", json.dumps(entries))
+        files += [out / "sensitivity_single.csv", out / "sensitivity_3d.json",
+                  plotting.sensitivity_single(rows, out / "sensitivity_single.png"),
+                  plotting.ellipsoids(entries, out / "sensitivity_3d.png")]
+    elif args.command == "resolution":
+        rows = analyses.resolution(robot, progress=prog)
+        summary = analyses.resolution_summary(rows)
+        keys = ["force_gF", "resolution_x_g", "resolution_y_g", "resolution_z_g"]
+        write_csv_atomic(out / "resolution.csv", keys,
+                         [[" ".join(map(str, r[k])) if k == "force_gF" else r[k] for k in keys]
+                          for r in rows])
+        files += [out / "resolution.csv", plotting.resolution(rows, out / "resolution.png")]
+    else:
+        from . import experiments
+        table = analyses.compare(robot, args.csv, progress=prog)
+        summary = {m: experiments.summary(rows) for m, rows in table.items()}
+        write_csv_atomic(out / "compare.csv", ["model", "case", "applied", "estimate", "error"],
+                         [[m, r.case, " ".join(map(str, r.applied)),
+                           "" if r.ours is None else " ".join(map(str, r.ours)), r.error(r.ours)]
+                          for m, rows in table.items() for r in rows])
+        files += [out / "compare.csv", plotting.comparison(table, out / "compare.png")]
+    prog.close()
+    write_text_atomic(out / f"{args.command}_summary.json", json.dumps(summary, indent=1))
+    files.append(out / f"{args.command}_summary.json")
+    if args.json:
+        print(json.dumps({"summary": summary, "files": [str(f) for f in files]}))
+    else:
+        print(json.dumps(summary, indent=1))
+        print("wrote " + ", ".join(str(f) for f in files))
+    return True
+
+
 def _print_result(result, as_json: bool, title: str):
     if as_json:
         print(json.dumps(result.to_json()))
@@ -147,6 +257,7 @@ def _estimate(args, robot):
         result = estimate(robot, dict(args.displacement), dict(args.tension), args.unknown,
                           _point_forces(args), noise)
         _print_result(result, args.json, "estimation")
+        _plot_shape(args, robot, result, args.unknown)
         return result.converged
     from . import readings as rd
     if args.displacement or args.tension:
@@ -196,22 +307,48 @@ def _experiments(args) -> bool:
     return summary["converged"] == summary["rows"]
 
 
+def _identify(args, robot) -> bool:
+    from .identification import identify, read_snapshots
+    from .robot import robot_to_toml
+    snapshots = read_snapshots(args.snapshots, robot)
+    fit = identify(robot, snapshots, args.param or ("young_modulus", "density"))
+    if args.output:
+        from .readings import write_text_atomic
+        write_text_atomic(args.output, robot_to_toml(fit.robot))
+    if args.json:
+        print(json.dumps(fit.to_json()))
+    else:
+        for k, v in fit.parameters.items():
+            print(f"{k} = {v:.6g}")
+        print(f"marker RMSE {fit.marker_rmse * 1e3:.2f} mm (robot file's values: "
+              f"{fit.initial_rmse * 1e3:.2f} mm); "
+              f"{'converged' if fit.converged else 'NOT CONVERGED'} in {fit.iterations} "
+              f"iterations")
+    return fit.converged
+
+
 def main(argv=None) -> int:
     try:
         args = build_parser().parse_args(argv)
         if args.command == "experiments":
             return 0 if _experiments(args) else 3
+        if args.command in ("sensitivity", "resolution", "compare"):
+            return 0 if _analysis_run(args) else 3
         robot = load_robot(args.robot)
+        if args.command == "identify":
+            return 0 if _identify(args, robot) else _not_converged()
         from . import forward
         if args.command == "estimate":
             return 0 if _estimate(args, robot) else _not_converged()
         if args.command == "solve":
             result = forward.solve(robot, dict(args.tension), _point_forces(args))
             _print_result(result, args.json, "forward statics")
+            _plot_shape(args, robot, result)
         elif args.command == "fk":
             result = forward.forward_kinematics(robot, dict(args.displacement),
                                                 dict(args.tension), _point_forces(args))
             _print_result(result, args.json, "forward kinematics")
+            _plot_shape(args, robot, result)
     except UsageError as exc:
         print(exc, file=sys.stderr)
         return 2

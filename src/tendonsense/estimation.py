@@ -137,7 +137,7 @@ def _jacobians_fn(model: Model, measured: tuple[int, ...]):
     return jax.jit(jac)
 
 
-def _reduced(prob: Problem, x, drive, params):
+def reduced_jacobians(prob: Problem, x, drive, params):
     """Reduced Jacobians of the measured lengths w.r.t. the magnitudes and the tensions, with
     the equilibrium eliminated: ``dy/dz = −y_q E_q⁻¹ E_z``, ``dy/dT = −y_q E_q⁻¹ E_T``."""
     nq = prob.model.nq
@@ -170,7 +170,7 @@ def _least_squares(prob: Problem, drive: Drive, params: Params, x0, tol: float):
     for _ in range(100):
         if not bool(res.converged):
             break
-        Jz, _ = _reduced(prob, np.concatenate([np.asarray(res.x), z]), drive, params)
+        Jz, _ = reduced_jacobians(prob, np.concatenate([np.asarray(res.x), z]), drive, params)
         g = Jz.T @ e
         scale = np.linalg.norm(Jz) * np.linalg.norm(e)
         if np.linalg.norm(e) <= 1e-13 or np.linalg.norm(g) <= tol * scale:
@@ -214,12 +214,14 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
 
 
 def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Noise(),
-                     x0=None) -> Result:
+                     x0=None, params: Params | None = None) -> Result:
+    """:func:`estimate` on a prepared :func:`problem`; ``params`` overrides the robot file's
+    material parameters (e.g. a friction error) without recompiling."""
     robot, model = prob.robot, prob.model
     T = tendon_vector(robot, tensions, "tension")
     y_all = tendon_vector(robot, displacements, "displacement")
     drive = prob.drive(T, y_all[list(prob.measured)])
-    params = Params.of(model)
+    params = Params.of(model) if params is None else params
     tol = robot.numerics.tolerance
     if len(prob.measured) == prob.n_z:
         res = solve_system(model, prob.measured, drive, prob.unknowns, params, x0)
@@ -239,7 +241,7 @@ def _uncertainty(prob: Problem, x, drive, params, T, noise: Noise):
     ``dz/dm = −(∂e/∂z)⁺ ∂e/∂m`` with ``e = y(q(z, T)) − y_meas`` (exact for square problems,
     Gauss–Newton for least squares)."""
     names = prob.robot.tendon_names
-    Jz, JT = _reduced(prob, x, drive, params)
+    Jz, JT = reduced_jacobians(prob, x, drive, params)
     pinv = np.linalg.pinv(Jz)
     dz_dy = pinv  # ∂e/∂y_meas = −I
     dz_dT = -pinv @ JT

@@ -4,6 +4,7 @@ result atomically."""
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 import sys
@@ -168,15 +169,22 @@ def shape_rmse(result: Result, measured: dict[str, np.ndarray]) -> float:
 
 
 def write_csv_atomic(path: str | Path, header, rows):
-    """Write a CSV next to its destination and move it into place, so that a reader never
-    sees a partial file."""
+    """Write a CSV atomically (see :func:`write_text_atomic`)."""
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(header)
+    w.writerows(rows)
+    write_text_atomic(path, buf.getvalue())
+
+
+def write_text_atomic(path: str | Path, text: str):
+    """Write next to the destination and move into place: a reader never sees a partial
+    file, and a failed run leaves none."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or ".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
         with os.fdopen(fd, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(header)
-            w.writerows(rows)
+            fh.write(text)
         os.replace(tmp, path)
     except BaseException:
         os.unlink(tmp)

@@ -1,0 +1,213 @@
+"""The paper's analyses (§IV, §V-B4): sensitivity to measurement and friction errors,
+force resolution, and the comparison of GVS with simpler strain models.
+
+Each returns plain data (lists of dicts / arrays) that the CLI writes as CSV/JSON and
+:mod:`tendonsense.plotting` draws.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+from . import experiments
+from .estimation import PointForceUnknown, estimate_problem, problem, reduced_jacobians
+from .forward import forward_kinematics, solve
+from .robot import Robot
+from .statics import Params
+
+GF = 9.80665e-3  # N per gram-force
+
+#: the paper's figures (§IV)
+PAPER_SINGLE = {"length": (0.12, 0.17), "tension": (0.08, 0.10), "friction": (0.08, 0.10)}
+PAPER_3D = {"length": (0.04, 0.08), "tension": (0.12, 0.16), "friction": (0.12, 0.16)}
+PAPER_RESOLUTION_G = {"x": (3.72, 3.6), "y": (0.36, 0.16), "z": (0.46, 0.2)}
+
+
+@dataclass(frozen=True)
+class Errors:
+    """Error amplitudes of §IV: tendon length (m), tension and friction (relative)."""
+
+    length: float = 1e-3
+    tension: float = 0.025
+    friction: float = 0.15
+
+
+def _params_with_friction(prob, factors) -> Params:
+    p = Params.of(prob.model)
+    return p._replace(friction=p.friction * jnp.asarray(factors, float))
+
+
+def sensitivity_single(robot: Robot, tendon: str = "t1", forces_gf=(-25.0, -75.0, -125.0),
+                       y_range=(-0.02, 0.0), n_y: int = 9, errors: Errors = Errors(),
+                       progress=None) -> list[dict]:
+    """Fig. 3a: a vertical tip force estimated from one tendon, the estimate under ±length,
+    ±tension and ±friction errors. One row per (force, y)."""
+    L = robot.rod.length
+    prob = problem(robot, [tendon], [PointForceUnknown(L, (0.0, 0.0, 1.0))])
+    j = robot.tendon_names.index(tendon)
+    rows = []
+    grid = list(itertools.product(forces_gf, np.linspace(*y_range, n_y)))
+    for k, (f_gf, y) in enumerate(grid):
+        F = f_gf * GF
+        truth = forward_kinematics(robot, {tendon: y}, point_forces=[(L, (0.0, 0.0, F))])
+        T = truth.tensions[tendon]
+        row = {"force_gF": f_gf, "force_N": F, "displacement_m": float(y), "tension_N": T,
+               "truth_converged": truth.converged}
+        if not truth.converged or T <= 0:
+            row["note"] = "slack or unsolved" if truth.converged else "forward problem failed"
+            rows.append(row)
+            continue
+        nominal = estimate_problem(prob, {tendon: y}, {tendon: T})
+        row["estimate_N"] = float(nominal.magnitudes[0])
+        x0 = nominal.extra["x"]
+        for sign, tag in ((+1, "plus"), (-1, "minus")):
+            cases = {
+                "length": dict(displacements={tendon: y + sign * errors.length},
+                               tensions={tendon: T}),
+                "tension": dict(displacements={tendon: y},
+                                tensions={tendon: T * (1 + sign * errors.tension)}),
+                "friction": dict(displacements={tendon: y}, tensions={tendon: T},
+                                 params=_params_with_friction(
+                                     prob, [1 + sign * errors.friction * (i == j)
+                                            for i in range(len(robot.tendons))])),
+            }
+            for source, kw in cases.items():
+                r = estimate_problem(prob, x0=x0, **kw)
+                row[f"{source}_{tag}_N"] = float(r.magnitudes[0]) if r.converged else np.nan
+        rows.append(row)
+        if progress:
+            progress(k + 1, len(grid))
+    return rows
+
+
+def single_summary(rows: list[dict]) -> dict:
+    """Mean and maximum relative error per error source (both signs)."""
+    out = {}
+    for source in ("length", "tension", "friction"):
+        errs = [abs(r[f"{source}_{s}_N"] - r["force_N"]) / abs(r["force_N"])
+                for r in rows if "estimate_N" in r for s in ("plus", "minus")]
+        errs = np.array(errs)
+        out[source] = {"mean": float(np.nanmean(errs)), "max": float(np.nanmax(errs)),
+                       "paper_mean": PAPER_SINGLE[source][0], "paper_max": PAPER_SINGLE[source][1]}
+    return out
+
+
+def default_3d_forces_gf():
+    """Tip forces for Fig. 3b / the resolution analysis: every sign of (50, 50, 75) gF."""
+    return [np.array([sx * 50.0, sy * 50.0, sz * 75.0])
+            for sx, sy, sz in itertools.product((-1, 1), repeat=3)]
+
+
+def sensitivity_3d(robot: Robot, forces_gf=None, tensions=(1.5, 1.5, 1.5),
+                   errors: Errors = Errors(), progress=None) -> list[dict]:
+    """Fig. 3b: 3-D tip forces from three tendons; per force and error source, the 27
+    estimates from every per-tendon error sign (−, 0, +) of amplitude error / n_tendons."""
+    forces_gf = default_3d_forces_gf() if forces_gf is None else forces_gf
+    L = robot.rod.length
+    names = robot.tendon_names
+    n = len(names)
+    prob = problem(robot, names, [PointForceUnknown(L, tuple(e)) for e in np.eye(3)])
+    T = dict(zip(names, tensions))
+    out = []
+    for k, f_gf in enumerate(forces_gf):
+        F = np.asarray(f_gf) * GF
+        truth = solve(robot, T, [(L, tuple(F))])
+        y = truth.displacements
+        nominal = estimate_problem(prob, y, T)
+        entry = {"force_gF": np.asarray(f_gf, float).tolist(), "force_N": F.tolist(),
+                 "estimate_N": nominal.magnitudes.tolist()}
+        for source in ("length", "tension", "friction"):
+            amp = getattr(errors, source) / n
+            estimates = []
+            for signs in itertools.product((-1, 0, 1), repeat=n):
+                s = np.array(signs, float)
+                kw = {"displacements": dict(y), "tensions": dict(T)}
+                if source == "length":
+                    kw["displacements"] = {m: y[m] + s[i] * amp for i, m in enumerate(names)}
+                elif source == "tension":
+                    kw["tensions"] = {m: T[m] * (1 + s[i] * amp) for i, m in enumerate(names)}
+                else:
+                    kw["params"] = _params_with_friction(prob, 1 + s * amp)
+                r = estimate_problem(prob, x0=nominal.extra["x"], **kw)
+                estimates.append(r.magnitudes if r.converged else np.full(3, np.nan))
+            estimates = np.array(estimates)
+            err = np.linalg.norm(estimates - F, axis=1) / np.linalg.norm(F)
+            entry[source] = {"estimates_N": estimates.tolist(),
+                             "mean_relative_error": float(np.nanmean(err)),
+                             "max_relative_error": float(np.nanmax(err))}
+        out.append(entry)
+        if progress:
+            progress(k + 1, len(forces_gf))
+    return out
+
+
+def summary_3d(entries: list[dict]) -> dict:
+    out = {}
+    for source in ("length", "tension", "friction"):
+        means = [e[source]["mean_relative_error"] for e in entries]
+        out[source] = {"mean": float(np.mean(means)), "min_over_forces": float(np.min(means)),
+                       "max_over_forces": float(np.max(means)),
+                       "paper_range": list(PAPER_3D[source])}
+    return out
+
+
+def resolution(robot: Robot, forces_gf=None, tensions=(1.5, 1.5, 1.5),
+               tension_resolution: float = 0.025 / 3, progress=None) -> list[dict]:
+    """§IV resolution: at fixed tendon lengths, the smallest increment of each tip-force
+    component that changes at least one tension by the sensor resolution (first order,
+    ``dT/dF = −(∂y/∂T)⁻¹ ∂y/∂F`` with the equilibrium eliminated)."""
+    forces_gf = default_3d_forces_gf() if forces_gf is None else forces_gf
+    L = robot.rod.length
+    names = robot.tendon_names
+    prob = problem(robot, names, [PointForceUnknown(L, tuple(e)) for e in np.eye(3)])
+    T = dict(zip(names, tensions))
+    rows = []
+    for k, f_gf in enumerate(forces_gf):
+        F = np.asarray(f_gf) * GF
+        truth = solve(robot, T, [(L, tuple(F))])
+        est = estimate_problem(prob, truth.displacements, T)
+        drive = prob.drive(np.array(tensions, float), np.array([truth.displacements[n]
+                                                                  for n in names]))
+        Jz, JT = reduced_jacobians(prob, est.extra["x"], drive, Params.of(prob.model))
+        dT_dF = -np.linalg.solve(JT, Jz)  # (n_t, 3)
+        detect = tension_resolution * np.abs(np.array(tensions, float))[:, None]
+        delta = np.min(detect / np.maximum(np.abs(dT_dF), 1e-300), axis=0)  # N per component
+        rows.append({"force_gF": np.asarray(f_gf, float).tolist(),
+                     **{f"resolution_{a}_g": float(d / GF) for a, d in zip("xyz", delta)}})
+        if progress:
+            progress(k + 1, len(forces_gf))
+    return rows
+
+
+def resolution_summary(rows: list[dict]) -> dict:
+    out = {}
+    for a in "xyz":
+        v = np.array([r[f"resolution_{a}_g"] for r in rows])
+        out[a] = {"mean_g": float(v.mean()), "std_g": float(v.std()),
+                  "paper_mean_g": PAPER_RESOLUTION_G[a][0], "paper_std_g": PAPER_RESOLUTION_G[a][1]}
+    return out
+
+
+#: strain settings of the compared models (§V-B4)
+def model_variants(robot: Robot) -> dict[str, Robot]:
+    deg = dict(robot.strain)
+    bend = {k: deg.get(k, 4) for k in ("bending_y", "bending_z")}
+    return {"GVS": robot,
+            "3D-PC+E": robot.replace(strain=tuple({**bend, "elongation": deg.get("elongation", 3)}
+                                                  .items())),
+            "3D-PC": robot.replace(strain=tuple(bend.items()))}
+
+
+def compare(robot: Robot, csv_path, progress=None) -> dict[str, list]:
+    """The estimator with each strain model on the paper's experiment rows."""
+    out = {}
+    variants = model_variants(robot)
+    for k, (name, r) in enumerate(variants.items()):
+        out[name] = experiments.run(r, csv_path)
+        if progress:
+            progress(k + 1, len(variants))
+    return out

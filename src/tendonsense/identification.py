@@ -1,0 +1,268 @@
+"""Identification of E, ρ and μ from marker positions over static snapshots (eq. 18–19).
+
+Each snapshot's equilibrium is an exact constraint: its shape ``q_k(θ)`` is solved by the core
+Newton solver, and the marker Jacobian follows by implicit differentiation,
+``dp/dθ = p_q (−E_q⁻¹ ∂E/∂θ)``; Levenberg–Marquardt on ``log θ`` minimises
+``Σ_k ‖p_k(q_k(θ)) − p_k^meas‖²``.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .forward import model_for
+from .kinematics import Frames, grid_frames, positions
+from .model import Model
+from .robot import Robot
+from .statics import Drive, Params, Unknowns, solve_system, terms
+
+PARAMETERS = ("young_modulus", "density", "friction")
+_DESCRIPTIVE = ("source", "note", "comment", "time", "id", "name")
+
+
+class SnapshotError(ValueError):
+    """Snapshots that cannot identify what was asked; the message says why."""
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """One static pose: tensions (N, per tendon), an optional known global point load and the
+    measured marker positions (m, global)."""
+
+    tensions: dict[str, float]
+    markers: dict[str, np.ndarray]
+    load: tuple[float, tuple[float, float, float]] | None = None
+
+
+@dataclass(frozen=True)
+class Identified:
+    parameters: dict[str, float]
+    marker_rmse: float  # m, after the fit
+    initial_rmse: float  # m, with the robot file's values
+    converged: bool
+    iterations: int
+    robot: Robot  # the robot with the fitted values
+
+    def to_json(self) -> dict:
+        return {**self.parameters, "marker_rmse": self.marker_rmse,
+                "initial_marker_rmse": self.initial_rmse, "converged": self.converged,
+                "iterations": self.iterations}
+
+
+def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
+    """SNAPSHOTS.csv of SPEC §4."""
+    path = Path(path)
+    try:
+        with open(path, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+    except OSError as exc:
+        raise SnapshotError(f"{path}: cannot read ({exc.strerror})") from None
+    if not rows:
+        raise SnapshotError(f"{path}: no snapshot rows")
+    header = list(rows[0].keys())
+    load_cols = ("load_X", "load_fx", "load_fy", "load_fz")
+    markers = [m for m in robot.marker_names if f"marker_{m}_x" in header]
+    for col in header:
+        kind, _, name = col.partition("_")
+        ok = (col in _DESCRIPTIVE or col in load_cols
+              or (kind == "tension" and name in robot.tendon_names)
+              or (kind == "marker" and name[:-2] in markers and name[-2:] in ("_x", "_y", "_z")))
+        if not ok:
+            raise SnapshotError(f"{path}: column {col!r} is not tension_<tendon>, "
+                                f"load_X/_fx/_fy/_fz or marker_<marker>_x/_y/_z")
+    if not markers:
+        raise SnapshotError(f"{path}: no marker_<name>_x/_y/_z columns: nothing to fit to")
+    out = []
+    for i, row in enumerate(rows, start=1):
+        def num(col, required=True):
+            text = (row.get(col) or "").strip()
+            if not text:
+                if required:
+                    raise SnapshotError(f"{path}: snapshot row {i}: column {col} is missing")
+                return None
+            try:
+                v = float(text)
+            except ValueError:
+                v = math.nan
+            if not math.isfinite(v):
+                raise SnapshotError(f"{path}: snapshot row {i}: column {col}: {text!r} is "
+                                    f"not a finite number")
+            return v
+        tensions = {n: num(f"tension_{n}") for n in robot.tendon_names if f"tension_{n}" in row}
+        pos = {m: np.array([num(f"marker_{m}_{a}") for a in "xyz"]) for m in markers}
+        load_vals = [num(c, required=False) if c in row else None for c in load_cols]
+        if all(v is None for v in load_vals):
+            load = None
+        elif any(v is None for v in load_vals):
+            raise SnapshotError(f"{path}: snapshot row {i}: a load needs load_X, load_fx, "
+                                f"load_fy and load_fz")
+        else:
+            if not 0 <= load_vals[0] <= robot.rod.length:
+                raise SnapshotError(f"{path}: snapshot row {i}: load_X = {load_vals[0]:g} is "
+                                    f"outside the rod")
+            load = (load_vals[0], tuple(load_vals[1:]))
+        out.append(Snapshot(tensions, pos, load))
+    return out
+
+
+def _check(robot: Robot, snapshots: Sequence[Snapshot], params: Sequence[str]):
+    if not snapshots:
+        raise SnapshotError("no snapshots")
+    bad = [p for p in params if p not in PARAMETERS]
+    if bad or not params:
+        raise SnapshotError(f"parameters to fit must be among {', '.join(PARAMETERS)}; got "
+                            f"{', '.join(params) or 'none'}")
+    for k, s in enumerate(snapshots, start=1):
+        if not s.markers:
+            raise SnapshotError(f"snapshot {k}: no measured markers")
+        for m, p in s.markers.items():
+            if m not in robot.marker_names:
+                raise SnapshotError(f"snapshot {k}: no marker {m!r} in the robot")
+            if np.shape(p) != (3,) or not np.all(np.isfinite(p)):
+                raise SnapshotError(f"snapshot {k}: marker {m!r} is not 3 finite numbers")
+    tensioned = any(any(v != 0 for v in s.tensions.values()) for s in snapshots)
+    if "friction" in params and not tensioned:
+        raise SnapshotError("friction cannot be identified: no snapshot has a tendon under "
+                            "tension")
+    loaded = any(s.load is not None for s in snapshots)
+    if {"young_modulus", "density"} <= set(params) and not (loaded or tensioned):
+        raise SnapshotError("young_modulus and density cannot both be identified from "
+                            "gravity-only snapshots (only density / young_modulus is "
+                            "observable): add a known load or tendon tension")
+
+
+@lru_cache(maxsize=None)
+def _snapshot_fns(model: Model):
+    """Jitted marker positions and the Jacobians (E_q, E_params, p_q) of one snapshot."""
+    nodes, offsets = model.marker_nodes, jnp.asarray(model.marker_offsets)
+    unknowns = Unknowns.none(model)
+
+    def markers(q):
+        grid = grid_frames(model, q)
+        return positions(Frames(grid.g[nodes], grid.J[nodes]), offsets)
+
+    def equilibrium(q, params, drive):
+        t = terms(model, q, jnp.zeros(0), drive, unknowns, params, 1.0)
+        return params.young_modulus * (jnp.asarray(model.K_unit) @ q) - t.B @ t.tensions \
+            - t.external
+
+    def jacobians(q, params, drive):
+        Eq, Ep = jax.jacfwd(equilibrium, argnums=(0, 1))(q, params, drive)
+        return Eq, Ep, jax.jacfwd(markers)(q)
+
+    return jax.jit(markers), jax.jit(jacobians)
+
+
+def identify(robot: Robot, snapshots: Sequence[Snapshot],
+             params: Sequence[str] = ("young_modulus", "density"), max_iterations: int = 50,
+             progress=None) -> Identified:
+    """Fit ``params`` (a subset of young_modulus, density, friction — one μ for every tendon)
+    to the snapshots' markers, starting from the robot file's values."""
+    params = tuple(dict.fromkeys(params))
+    _check(robot, snapshots, params)
+    loads = sorted({s.load[0] for s in snapshots if s.load is not None})
+    model = model_for(robot, tuple(loads))
+    names = robot.marker_names
+    gravity = jnp.asarray(robot.gravity, float)
+    drives, meas, idx = [], [], []
+    for s in snapshots:
+        T = np.array([s.tensions.get(n, 0.0) for n in robot.tendon_names])
+        F = np.zeros((len(loads), 3))
+        if s.load is not None:
+            F[loads.index(s.load[0])] = s.load[1]
+        drives.append(Drive(jnp.asarray(T), jnp.asarray(F), gravity, jnp.zeros(0)))
+        sel = [names.index(m) for m in s.markers]
+        idx.append(sel)
+        meas.append(np.array([s.markers[m] for m in s.markers]))
+    markers_fn, jac_fn = _snapshot_fns(model)
+
+    base = Params.of(model)
+    theta0 = {"young_modulus": float(base.young_modulus), "density": float(base.density),
+              "friction": max(float(np.mean(np.asarray(base.friction))) if robot.tendons
+                              else 0.0, 0.05)}
+    scale = np.array([theta0[p] for p in params])
+
+    def make_params(log_ratio):
+        v = dict(zip(params, scale * np.exp(log_ratio)))
+        return Params(jnp.asarray(v.get("young_modulus", base.young_modulus)),
+                      jnp.asarray(v.get("density", base.density)),
+                      jnp.full(len(robot.tendons), v["friction"]) if "friction" in v
+                      else base.friction), v
+
+    def evaluate(log_ratio, q_start):
+        """Marker residuals, their Jacobian w.r.t. log θ and the snapshot shapes, or None if
+        an equilibrium fails."""
+        p, values = make_params(log_ratio)
+        dtheta = np.array([values[n] for n in params])  # d/d log θ = θ d/dθ
+        res, jac, qs = [], [], []
+        for k, d in enumerate(drives):
+            sol = solve_system(model, (), d, Unknowns.none(model), p, q_start[k])
+            if not bool(sol.converged):
+                return None
+            res.append((np.asarray(markers_fn(sol.x))[idx[k]] - meas[k]).ravel())
+            Eq, Ep, Pq = jac_fn(sol.x, p, d)
+            dE = np.stack([_param_column(Ep, n) for n in params], axis=1) * dtheta
+            dq = -np.linalg.solve(np.asarray(Eq), dE)
+            jac.append((np.asarray(Pq)[idx[k]] @ dq).reshape(-1, len(params)))
+            qs.append(sol.x)
+        return np.concatenate(res), np.concatenate(jac), qs
+
+    theta = np.zeros(len(params))
+    first = evaluate(theta, [None] * len(drives))
+    if first is None:
+        raise SnapshotError("a snapshot's equilibrium did not converge with the robot file's "
+                            "parameters")
+    r, J, qs = first
+    initial_rmse = _rmse(r)
+    damping, converged, it = 1e-3, False, 0
+    for it in range(1, max_iterations + 1):
+        g = J.T @ r
+        if np.linalg.norm(g) <= 1e-10 * np.linalg.norm(J) * np.linalg.norm(r) + 1e-300:
+            converged = True
+            break
+        H = J.T @ J
+        step, improved = None, False
+        while damping < 1e10:
+            step = np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-12), -g)
+            trial = evaluate(theta + step, qs)
+            if trial is not None and trial[0] @ trial[0] < r @ r:
+                theta, (r, J, qs) = theta + step, trial
+                damping, improved = max(damping / 5, 1e-10), True
+                break
+            damping *= 5
+        if progress is not None:
+            progress(it, max_iterations)
+        if improved and np.linalg.norm(step) <= 1e-9:  # relative change of θ
+            converged = True
+            break
+        if not improved:
+            # no further decrease: a minimum if the gradient is small there or the fit exact
+            g = J.T @ r
+            converged = bool(np.linalg.norm(g) <= 1e-6 * np.linalg.norm(J) * np.linalg.norm(r)
+                             or _rmse(r) < 1e-10)
+            break
+    _, fitted = make_params(theta)
+    fitted = {k: float(v) for k, v in fitted.items()}
+    new_robot = robot.with_parameters(**fitted)
+    return Identified(fitted, _rmse(r), initial_rmse, bool(converged), it, new_robot)
+
+
+def _param_column(Ep: Params, name: str) -> np.ndarray:
+    """∂E/∂θ for one parameter (friction: one μ shared by every tendon)."""
+    if name == "friction":
+        return np.asarray(Ep.friction).sum(axis=1)
+    return np.asarray(getattr(Ep, name))
+
+
+def _rmse(r: np.ndarray) -> float:
+    """Root-mean-square marker distance: r holds xyz triples."""
+    return float(np.sqrt(np.mean(np.sum(r.reshape(-1, 3) ** 2, axis=1))))

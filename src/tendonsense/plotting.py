@@ -1,0 +1,140 @@
+"""Figures, drawn headlessly (matplotlib, Agg backend) and written as PNG."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .analyses import GF  # noqa: E402
+
+SOURCES = ("length", "tension", "friction")
+COLOURS = {"length": "tab:blue", "tension": "tab:orange", "friction": "tab:green"}
+
+
+def _save(fig, path) -> Path:
+    path = Path(path)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def _equal_3d(ax, pts):
+    pts = np.asarray(pts)
+    centre = (pts.max(0) + pts.min(0)) / 2
+    half = max((pts.max(0) - pts.min(0)).max() / 2, 1e-3)
+    for set_lim, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
+        set_lim(c - half, c + half)
+
+
+def shape(result, path, length: float, forces=(), measured_markers=None, title="shape"):
+    """3-D backbone (mm), markers, and force arrows [(X, f_global N)] scaled to the rod of
+    ``length`` (the backbone is sampled uniformly in X)."""
+    fig = plt.figure(figsize=(6.5, 5.5))
+    ax = fig.add_subplot(projection="3d")
+    b = np.asarray(result.backbone) * 1e3
+    ax.plot(*b.T, color="tab:red", lw=2.5, label="estimated backbone")
+    if result.markers:
+        m = np.array(list(result.markers.values())) * 1e3
+        ax.scatter(*m.T, color="tab:red", s=30, label="estimated markers")
+    if measured_markers:
+        m = np.array(list(measured_markers.values())) * 1e3
+        ax.scatter(*m.T, color="black", marker="x", s=40, label="measured markers")
+    pts = [b]
+    scale = 0.25 * np.ptp(b, axis=0).max() / max([np.linalg.norm(f) for _, f in forces] + [1e-12])
+    for X, f in forces:
+        i = int(round(X / length * (len(b) - 1)))
+        p, v = b[i], np.asarray(f) * scale
+        ax.quiver(*p, *v, color="tab:purple", arrow_length_ratio=0.2)
+        pts.append(np.array([p + v]))
+        ax.text(*(p + v), f"{np.linalg.norm(f) / GF:.0f} gF", color="tab:purple")
+    _equal_3d(ax, np.concatenate(pts))
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_zlabel("z (mm)")
+    ax.set_title(title)
+    ax.legend(loc="upper left", fontsize=8)
+    return _save(fig, path)
+
+
+def sensitivity_single(rows, path):
+    """Fig. 3a: estimated force vs tendon length change with the band of each error source."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    forces = sorted({r["force_gF"] for r in rows})
+    for f in forces:
+        sel = [r for r in rows if r["force_gF"] == f and "estimate_N" in r]
+        y = np.array([r["displacement_m"] for r in sel]) * 1e3
+        ax.plot(y, [r["estimate_N"] / GF for r in sel], "k.-", lw=1)
+        ax.axhline(f, color="grey", ls=":", lw=0.8)
+        for s in SOURCES:
+            lo = [min(r[f"{s}_plus_N"], r[f"{s}_minus_N"]) / GF for r in sel]
+            hi = [max(r[f"{s}_plus_N"], r[f"{s}_minus_N"]) / GF for r in sel]
+            ax.fill_between(y, lo, hi, color=COLOURS[s], alpha=0.25,
+                            label=f"{s} error" if f == forces[0] else None)
+    ax.set_xlabel("tendon length change y (mm)")
+    ax.set_ylabel("estimated tip force F_z (gF)")
+    ax.set_title("Sensitivity, one tendon (Fig. 3a)")
+    ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def ellipsoids(entries, path):
+    """Fig. 3b: estimates of 3-D tip forces under the 27 per-tendon error combinations, with
+    their 2-σ ellipsoids, one colour per error source."""
+    fig = plt.figure(figsize=(7, 6))
+    ax = fig.add_subplot(projection="3d")
+    u, v = np.mgrid[0:2 * np.pi:16j, 0:np.pi:9j]
+    sphere = np.stack([np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v)], -1)
+    pts = []
+    for k, e in enumerate(entries):
+        F = np.array(e["force_N"]) / GF
+        ax.scatter(*F, color="black", s=30, marker="o", label="applied" if k == 0 else None)
+        pts.append(F[None])
+        for s in SOURCES:
+            est = np.array(e[s]["estimates_N"]) / GF
+            est = est[np.all(np.isfinite(est), axis=1)]
+            if len(est) < 4:
+                continue
+            c = est.mean(0)
+            w, V = np.linalg.eigh(np.cov(est.T))
+            surf = c + 2 * (sphere * np.sqrt(np.maximum(w, 0))) @ V.T
+            ax.plot_wireframe(*np.moveaxis(surf, -1, 0), color=COLOURS[s], lw=0.4, alpha=0.6,
+                              label=f"{s} error" if k == 0 else None)
+            pts.append(est)
+    _equal_3d(ax, np.concatenate(pts))
+    ax.set_xlabel("F_x (gF)")
+    ax.set_ylabel("F_y (gF)")
+    ax.set_zlabel("F_z (gF)")
+    ax.set_title("Sensitivity, three tendons (Fig. 3b)")
+    ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def resolution(rows, path):
+    fig, ax = plt.subplots(figsize=(6, 4))
+    data = [[r[f"resolution_{a}_g"] for r in rows] for a in "xyz"]
+    ax.boxplot(data, tick_labels=["Δx", "Δy", "Δz"])
+    ax.set_ylabel("smallest detectable increment (g)")
+    ax.set_title("Force resolution at ±(2.5/3)% tension resolution")
+    return _save(fig, path)
+
+
+def comparison(table: dict[str, list], path):
+    """Fig. 6: mean relative force error per model and experiment group."""
+    models = list(table)
+    groups = sorted({r.case.rsplit("-", 1)[0] for r in next(iter(table.values()))})
+    fig, ax = plt.subplots(figsize=(7, 4))
+    width = 0.8 / len(models)
+    for i, m in enumerate(models):
+        means = [np.nanmean([r.error(r.ours) for r in table[m]
+                             if r.case.rsplit("-", 1)[0] == g]) * 100 for g in groups]
+        ax.bar(np.arange(len(groups)) + i * width, means, width, label=m)
+    ax.set_xticks(np.arange(len(groups)) + width * (len(models) - 1) / 2, groups)
+    ax.set_ylabel("mean relative force error (%)")
+    ax.set_title("Model comparison on the paper's experiments")
+    ax.legend()
+    return _save(fig, path)
