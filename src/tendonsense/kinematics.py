@@ -51,6 +51,14 @@ def _step(Omega, dOmega):
     return _vexp(Omega), _vdexp(Omega) @ dOmega
 
 
+def grid_poses(model: Model, q) -> jax.Array:
+    """Poses (n_nodes, 4, 4) alone, without the Jacobians."""
+    Omega, _ = magnus(q, jnp.asarray(model.h), model.Phi1, model.Phi2)
+    eye = jnp.eye(4, dtype=Omega.dtype)[None]
+    return jnp.asarray(model.base) @ jnp.concatenate(
+        [eye, jax.lax.associative_scan(jnp.matmul, _vexp(Omega))])
+
+
 def grid_frames(model: Model, q, points: PointSet | None = None):
     """Poses and body Jacobians at every grid node (base pose included); with ``points``, also
     at those points (one batched Magnus/exp evaluation for both)."""

@@ -15,8 +15,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .estimation import Noise, Unknown, estimate_problem, problem
-from .result import Result
+from .estimation import Noise, Unknown, problem
+from .tracking import SampleEstimate, estimate_series
 from .robot import Robot
 
 AXES = ("x", "y", "z")
@@ -109,25 +109,21 @@ def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sampl
 
 def estimate_readings(robot: Robot, measured: Sequence[str], samples: Sequence[Sample],
                       unknowns: Sequence[Unknown], point_forces=(), noise: Noise = Noise(),
-                      progress: bool = False) -> list[Result | None]:
-    """Estimate every sample, each warm-started from the last converged one; a bad sample
-    gives None and the run goes on."""
+                      progress: bool = False) -> list[SampleEstimate | None]:
+    """Estimate every good sample of a log in order, each warm-started from the previous
+    one (:func:`tendonsense.tracking.estimate_series`); a bad sample gives None."""
     prob = problem(robot, measured, unknowns, point_forces)
-    out, x0 = [], None
-    bar = _progress(len(samples), progress)
-    for s in samples:
-        if s.error is None:
-            res = estimate_problem(prob, s.displacements, s.tensions, noise, x0)
-            if not res.converged:  # a bad warm start must not spoil the sample
-                res = estimate_problem(prob, s.displacements, s.tensions, noise, None)
-            if res.converged:
-                x0 = res.extra["x"]
-            out.append(res)
-        else:
-            out.append(None)
-        bar.update(1)
+    good = [s for s in samples if s.error is None]
+    bar = _progress(len(good), progress)
+
+    def tick(done, total):
+        bar.update(done - bar.n)
+
+    series = estimate_series(prob, [s.displacements for s in good], [s.tensions for s in good],
+                             noise, progress=tick)
     bar.close()
-    return out
+    it = iter(series)
+    return [next(it) if s.error is None else None for s in samples]
 
 
 def _progress(total: int, enabled: bool):
@@ -162,7 +158,7 @@ def output_rows(robot: Robot, samples, results, n_unknowns: int):
     return header, rows
 
 
-def shape_rmse(result: Result, measured: dict[str, np.ndarray]) -> float:
+def shape_rmse(result, measured: dict[str, np.ndarray]) -> float:
     """Root-mean-square distance (m) between estimated and measured markers."""
     d = [np.sum((result.markers[m] - p) ** 2) for m, p in measured.items()]
     return float(np.sqrt(np.mean(d)))

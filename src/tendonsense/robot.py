@@ -54,7 +54,7 @@ class Marker:
 class Numerics:
     """Discretisation and solver settings (``[solver]`` table)."""
 
-    intervals: int = 24  # uniform Magnus intervals before disks/markers/loads are merged in
+    intervals: int = 16  # uniform Magnus intervals before disks/markers/loads are merged in
     tolerance: float = 1e-10  # relative residual at convergence
     max_iterations: int = 60
 

@@ -80,9 +80,11 @@ def terms(model: Model, q, z, drive: Drive, unknowns: Unknowns, params: Params, 
     return Terms(grid, B, tendons.length_changes(model, grid), T, external)
 
 
-def residual(model: Model, measured: tuple[int, ...], x, drive, unknowns, params, lam):
+def residual(model: Model, measured: tuple[int, ...], x, drive, unknowns, params, lam,
+             with_actuation: bool = False):
     """Scaled residual ``[L⁻¹(Kq − BT − F); √k (y − y_meas)]`` (K = LLᵀ, k the tendons'
-    length stiffness: both parts in √J) and the size of the load in the same norm."""
+    length stiffness: both parts in √J) and the size of the load in the same norm; with
+    ``with_actuation`` also ``∂r/∂T`` (the residual is linear in the tensions)."""
     nq = model.nq
     q, z = x[:nq], x[nq:]
     t = terms(model, q, z, drive, unknowns, params, lam)
@@ -92,7 +94,11 @@ def residual(model: Model, measured: tuple[int, ...], x, drive, unknowns, params
     sel = np.array(measured, int)
     k = jnp.sqrt(params.young_modulus * model.length_stiffness_unit[sel])
     e = k * (t.y[sel] - lam * drive.targets)
-    return jnp.concatenate([E, e]), jnp.linalg.norm(L_inv @ load)
+    out = jnp.concatenate([E, e]), jnp.linalg.norm(L_inv @ load)
+    if with_actuation:
+        dr_dT = jnp.concatenate([-lam * (L_inv @ t.B), jnp.zeros((sel.size, t.B.shape[1]))])
+        return (*out, dr_dT)
+    return out
 
 
 class NewtonResult(NamedTuple):

@@ -1,0 +1,275 @@
+"""The fast path for sequences of readings: one compiled scan over the samples.
+
+Each sample starts from a first-order prediction (the previous solution plus its sensitivity
+times the change of the measurements) and takes quasi-Newton steps with an inverse Jacobian
+carried along the scan and kept current by Broyden updates. A step that does not halve the
+residual triggers a fresh exact Jacobian at the current point, after which the iteration is
+the damped Newton method of :mod:`tendonsense.statics` (Armijo backtracking). Convergence is
+tested exactly as there, so the results agree with the plain path to the solver tolerance.
+The sensitivity to the measurements, ``dx/dm = −R_x⁻¹ R_m``, uses the carried inverse with two
+steps of iterative refinement against the exact ``R_x`` (JVPs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Mapping, NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .kinematics import Frames, grid_poses, positions
+from .model import Model
+from .estimation import Noise, Problem, estimate_problem
+from .forward import tendon_vector
+from .statics import Drive, Params, residual
+
+
+class Track(NamedTuple):
+    """Per-sample outputs (leading axis: sample)."""
+
+    x: jax.Array  # (N, nq + n_z) solution [q; z]
+    converged: jax.Array  # (N,)
+    iterations: jax.Array  # (N,) residual evaluations
+    jacobians: jax.Array  # (N,) exact Jacobians computed
+    dx_dm: jax.Array  # (N, nq + n_z, n_meas + n_T) sensitivity to [y_meas; T_columns]
+    markers: jax.Array  # (N, n_markers, 3)
+
+
+@lru_cache(maxsize=None)
+def tracker(model: Model, measured: tuple[int, ...], n_z: int, tension_columns: tuple[int, ...],
+            refinements: int = 1):
+    """Compiled ``track(x0, drives, unknowns, params) -> Track`` for a square system
+    (``len(measured) == n_z``); ``drives`` is a :class:`Drive` with a leading sample axis.
+    The sensitivity columns are the measured lengths, then the tensions of the tendons
+    ``tension_columns``."""
+    num = model.robot.numerics
+    r0 = model.robot.rod.radius_knots[0][1]
+    floor_unit = 1e-6 * np.sqrt(r0**4 / model.robot.rod.length)
+    max_evals = 4 * num.max_iterations
+
+    def track(x0, drives, unknowns, params):
+        floor = floor_unit * jnp.sqrt(params.young_modulus)
+
+        def f(x, d):  # (r, load size, ∂r/∂T)
+            return residual(model, measured, x, d, unknowns, params, 1.0, with_actuation=True)
+
+        def jac(x, d):
+            return jax.jacfwd(lambda x: f(x, d)[0])(x)
+
+        def merit(r):
+            m = 0.5 * jnp.dot(r, r)
+            return jnp.where(jnp.isfinite(m), m, jnp.inf)
+
+        tcols = np.array(tension_columns, int)
+        sel = np.array(measured, int)
+
+        def measurements(d):
+            return jnp.concatenate([d.targets, d.tensions[tcols]])
+
+        def sample(carry, d):
+            x_prev, H_prev, dxdm_prev, m_prev, ok_prev = carry
+            # first-order tangent predictor from the previous sample's sensitivity
+            guess = x_prev + jnp.where(ok_prev, dxdm_prev @ (measurements(d) - m_prev), 0.0)
+            r, s, rT = f(guess, d)
+            st = dict(x=guess, r=r, s=s, rT=rT, H=H_prev, fresh=jnp.asarray(False),
+                      alpha=jnp.asarray(1.0), evals=jnp.asarray(1), jacs=jnp.asarray(0),
+                      status=jnp.where(jnp.linalg.norm(r) <= num.tolerance * (s + floor), 1, 0))
+
+            def cond(st):
+                return (st["status"] == 0) & (st["evals"] < max_evals)
+
+            def body(st):
+                dx = -st["H"] @ st["r"]
+                xt = st["x"] + st["alpha"] * dx
+                rt, ts, rTt = f(xt, d)
+                m0, mt = merit(st["r"]), merit(rt)
+                contracts = mt <= 0.25 * m0
+                armijo = mt <= (1 - 2e-4 * st["alpha"]) * m0
+                accept = contracts | (st["fresh"] & armijo)
+                conv = jnp.linalg.norm(rt) <= num.tolerance * (ts + floor)
+                refresh = ~accept & ~st["fresh"]
+                # good Broyden update of the inverse on an accepted step, exact on refresh
+                step, dr = xt - st["x"], rt - st["r"]
+                Hy = st["H"] @ dr
+                denom = jnp.dot(step, Hy)
+                safe = accept & (jnp.abs(denom) > 1e-300)
+                broyden = st["H"] + jnp.outer(step - Hy, step @ st["H"]) / jnp.where(
+                    safe, denom, 1.0)
+                H = jax.lax.cond(refresh, lambda: jnp.linalg.inv(jac(st["x"], d)),
+                                 lambda: jnp.where(safe, broyden, st["H"]))
+                give_up = ~accept & st["fresh"] & (st["alpha"] < 2.0**-30)
+                new = dict(
+                    x=jnp.where(accept, xt, st["x"]), r=jnp.where(accept, rt, st["r"]),
+                    s=jnp.where(accept, ts, st["s"]), rT=jnp.where(accept, rTt, st["rT"]), H=H,
+                    fresh=jnp.where(accept, False, True),
+                    alpha=jnp.where(accept | refresh, 1.0, st["alpha"] / 2),
+                    evals=st["evals"] + 1, jacs=st["jacs"] + refresh.astype(int),
+                    status=jnp.where(accept, jnp.where(conv, 1, 0), jnp.where(give_up, 2, 0)))
+                return new
+
+            st = jax.lax.while_loop(cond, body, st)
+            ok = st["status"] == 1
+            x = st["x"]
+            # sensitivity to the measurements [y_meas; T]: R_x dx = −R_m dm
+            # ∂r/∂y_meas is −√k on the length rows, ∂r/∂T = −L⁻¹B on the equilibrium rows
+            k = jnp.sqrt(params.young_modulus * model.length_stiffness_unit[sel])
+            Ry = jnp.zeros((x.size, sel.size)).at[model.nq + jnp.arange(sel.size),
+                                                   jnp.arange(sel.size)].set(-k)
+            Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)
+            Rx = jax.vmap(lambda u: jax.jvp(lambda x: f(x, d)[0], (x,), (u,))[1],
+                          in_axes=1, out_axes=1)
+            H = st["H"]
+            v = -H @ Rm
+            for _ in range(refinements):
+                # the exact products W = R_x v give a block (multi-secant) Broyden update of the
+                # inverse, H W = v, then the refined v = −H R_m
+                W = Rx(v)
+                HW = H @ W
+                M = v.T @ HW
+                ok_m = jnp.abs(jnp.linalg.det(M)) > 1e-300
+                Hn = H + (v - HW) @ jnp.linalg.solve(jnp.where(ok_m, M, jnp.eye(M.shape[0])),
+                                                     v.T @ H)
+                H = jnp.where(ok_m, Hn, H)
+                v = v - H @ (W + Rm)
+            g = grid_poses(model, x[:model.nq])[model.marker_nodes]
+            markers = positions(Frames(g, None), jnp.asarray(model.marker_offsets))
+            carry = (jnp.where(ok, x, x_prev), H, v, measurements(d), ok)
+            return carry, Track(x, ok, st["evals"], st["jacs"], v, markers)
+
+        d0 = jax.tree_util.tree_map(lambda a: a[0], drives)
+        m0 = measurements(d0)
+        carry = (x0, jnp.linalg.inv(jac(x0, d0)), jnp.zeros((x0.size, m0.size)), m0,
+                 jnp.asarray(False))
+        _, out = jax.lax.scan(sample, carry, drives)
+        return out
+
+    return jax.jit(track)
+
+
+def stacked_drives(prob: Problem, tensions: np.ndarray, targets: np.ndarray) -> Drive:
+    """The problem's drive for every row of ``tensions`` (N, n_t) and ``targets`` (N, n_m)."""
+    n = tensions.shape[0]
+    return Drive(jnp.asarray(tensions, float),
+                 jnp.asarray(np.broadcast_to(prob.known_forces, (n, *prob.known_forces.shape))),
+                 jnp.asarray(np.broadcast_to(prob.gravity, (n, 3))), jnp.asarray(targets, float))
+
+
+@dataclass(frozen=True, eq=False)
+class SampleEstimate:
+    """One sample of a series: magnitudes with their 1-σ band, markers (global, m)."""
+
+    magnitudes: np.ndarray
+    sigma: np.ndarray
+    markers: dict[str, np.ndarray]
+    converged: bool
+    iterations: int
+    x: np.ndarray
+
+
+def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
+                    tensions: Sequence[Mapping[str, float]], noise: Noise = Noise(),
+                    chunk: int = 100, progress=None) -> list[SampleEstimate]:
+    """Estimate a time series of readings, each sample warm-started from the previous one.
+
+    Square problems take the compiled tracker in chunks of ``chunk`` samples; a sample it
+    cannot converge is solved again on its own from the straight rod (load continuation), and
+    least-squares problems go sample by sample. ``progress(done, total)`` is called per chunk.
+    """
+    robot, model = prob.robot, prob.model
+    n = len(displacements)
+    T = np.array([tendon_vector(robot, t, "tension") for t in tensions]).reshape(n, -1)
+    Y = np.array([tendon_vector(robot, y, "displacement") for y in displacements]).reshape(n, -1)
+    if len(prob.measured) != prob.n_z:
+        return _one_by_one(prob, displacements, tensions, noise, progress)
+    tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.any(T != 0, axis=0)))))
+    track = tracker(model, prob.measured, prob.n_z, tcols)
+    params = Params.of(model)
+    meas = list(prob.measured)
+    out: list[SampleEstimate] = []
+    x0 = None
+    for start in range(0, n, chunk):
+        idx = range(start, min(n, start + chunk))
+        if x0 is None:  # the first sample from the straight rod, robustly
+            first = estimate_problem(prob, displacements[start], tensions[start], noise)
+            x0 = first.extra["x"] if first.converged else np.zeros(model.nq + prob.n_z)
+        # a fixed scan length (padded with the last sample) keeps one compiled tracker
+        rows = list(idx) + [idx[-1]] * (chunk - len(idx))
+        drives = stacked_drives(prob, T[rows], Y[rows][:, meas])
+        tr = jax.device_get(track(jnp.asarray(x0), drives, prob.unknowns, params))
+        for j, k in enumerate(idx):
+            if tr.converged[j]:
+                dz = tr.dx_dm[j, model.nq:, :]
+                scale = np.concatenate([np.full(len(meas), noise.length),
+                                        noise.tension * np.abs(T[k, list(tcols)])])
+                sigma = np.sqrt(((dz * scale) ** 2).sum(axis=1))
+                out.append(SampleEstimate(
+                    tr.x[j, model.nq:], sigma, dict(zip(robot.marker_names, tr.markers[j])),
+                    True, int(tr.iterations[j]), tr.x[j]))
+            else:
+                out.append(_from_result(estimate_problem(prob, displacements[k], tensions[k],
+                                                         noise)))
+        good = [e.x for e in out if e.converged]
+        x0 = good[-1] if good else None
+        if progress:
+            progress(len(out), n)
+    return out
+
+
+def _from_result(r) -> SampleEstimate:
+    return SampleEstimate(np.asarray(r.magnitudes), np.asarray(r.sigma), dict(r.markers),
+                          bool(r.converged), int(r.iterations), np.asarray(r.extra["x"]))
+
+
+def _one_by_one(prob, displacements, tensions, noise, progress):
+    out, x0 = [], None
+    for k, (y, t) in enumerate(zip(displacements, tensions)):
+        r = estimate_problem(prob, y, t, noise, x0)
+        if not r.converged:  # a bad warm start must not spoil the sample
+            r = estimate_problem(prob, y, t, noise, None)
+        if r.converged:
+            x0 = r.extra["x"]
+        out.append(_from_result(r))
+        if progress:
+            progress(k + 1, len(displacements))
+    return out
+
+
+def estimate_batch(prob: Problem, displacements: Sequence[Mapping[str, float]],
+                   tensions: Sequence[Mapping[str, float]], noise: Noise = Noise(),
+                   workers: int = 2, progress=None) -> list[SampleEstimate]:
+    """Estimate independent readings, returned in the input order.
+
+    The readings are ordered along their first principal direction so that neighbours
+    warm-start each other, cut into ``workers`` runs, and the runs are solved concurrently
+    (one thread each; the compiled tracker releases the GIL, so each takes a core).
+    """
+    from concurrent.futures import ThreadPoolExecutor
+    robot = prob.robot
+    n = len(displacements)
+    m = np.array([np.concatenate([tendon_vector(robot, y, "displacement"),
+                                  tendon_vector(robot, t, "tension")])
+                  for y, t in zip(displacements, tensions)]).reshape(n, -1)
+    z = (m - m.mean(0)) / np.maximum(m.std(0), 1e-300)
+    order = np.argsort(z @ np.linalg.svd(z, full_matrices=False)[2][0]) if n > 1 \
+        else np.arange(n)
+    runs = [r for r in np.array_split(order, max(1, workers)) if r.size]
+    done = [0] * len(runs)
+
+    def solve_run(i):
+        def tick(d, _):
+            done[i] = d
+            if progress:
+                progress(sum(done), n)
+        return estimate_series(prob, [displacements[k] for k in runs[i]],
+                               [tensions[k] for k in runs[i]], noise, progress=tick)
+
+    with ThreadPoolExecutor(len(runs)) as pool:
+        solved = list(pool.map(solve_run, range(len(runs))))
+    out: list = [None] * n
+    for run, res in zip(runs, solved):
+        for k, r in zip(run, res):
+            out[k] = r
+    return out
