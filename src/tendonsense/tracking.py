@@ -40,7 +40,7 @@ class Track(NamedTuple):
 
 @lru_cache(maxsize=None)
 def tracker(model: Model, measured: tuple[int, ...], n_z: int, tension_columns: tuple[int, ...],
-            refinements: int = 1):
+            refine_every: int = 1):
     """Compiled ``track(x0, drives, unknowns, params) -> Track`` for a square system
     (``len(measured) == n_z``); ``drives`` is a :class:`Drive` with a leading sample axis.
     The sensitivity columns are the measured lengths, then the tensions of the tendons
@@ -70,7 +70,7 @@ def tracker(model: Model, measured: tuple[int, ...], n_z: int, tension_columns: 
             return jnp.concatenate([d.targets, d.tensions[tcols]])
 
         def sample(carry, d):
-            x_prev, H_prev, dxdm_prev, m_prev, ok_prev = carry
+            x_prev, H_prev, dxdm_prev, m_prev, ok_prev, count = carry
             # first-order tangent predictor from the previous sample's sensitivity
             guess = x_prev + jnp.where(ok_prev, dxdm_prev @ (measurements(d) - m_prev), 0.0)
             r, s, rT = f(guess, d)
@@ -121,28 +121,29 @@ def tracker(model: Model, measured: tuple[int, ...], n_z: int, tension_columns: 
             Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)
             Rx = jax.vmap(lambda u: jax.jvp(lambda x: f(x, d)[0], (x,), (u,))[1],
                           in_axes=1, out_axes=1)
-            H = st["H"]
-            v = -H @ Rm
-            for _ in range(refinements):
+            def refine(H):
                 # the exact products W = R_x v give a block (multi-secant) Broyden update of the
                 # inverse, H W = v, then the refined v = −H R_m
+                v = -H @ Rm
                 W = Rx(v)
                 HW = H @ W
                 M = v.T @ HW
                 ok_m = jnp.abs(jnp.linalg.det(M)) > 1e-300
                 Hn = H + (v - HW) @ jnp.linalg.solve(jnp.where(ok_m, M, jnp.eye(M.shape[0])),
                                                      v.T @ H)
-                H = jnp.where(ok_m, Hn, H)
-                v = v - H @ (W + Rm)
+                return jnp.where(ok_m, Hn, H)
+
+            H = jax.lax.cond(count % refine_every == 0, refine, lambda H: H, st["H"])
+            v = -H @ Rm
             g = grid_poses(model, x[:model.nq])[model.marker_nodes]
             markers = positions(Frames(g, None), jnp.asarray(model.marker_offsets))
-            carry = (jnp.where(ok, x, x_prev), H, v, measurements(d), ok)
+            carry = (jnp.where(ok, x, x_prev), H, v, measurements(d), ok, count + 1)
             return carry, Track(x, ok, st["evals"], st["jacs"], v, markers)
 
         d0 = jax.tree_util.tree_map(lambda a: a[0], drives)
         m0 = measurements(d0)
         carry = (x0, jnp.linalg.inv(jac(x0, d0)), jnp.zeros((x0.size, m0.size)), m0,
-                 jnp.asarray(False))
+                 jnp.asarray(False), jnp.asarray(0))
         _, out = jax.lax.scan(sample, carry, drives)
         return out
 
@@ -185,7 +186,7 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
     if len(prob.measured) != prob.n_z:
         return _one_by_one(prob, displacements, tensions, noise, progress)
     tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.any(T != 0, axis=0)))))
-    track = tracker(model, prob.measured, prob.n_z, tcols)
+    track = tracker(model, prob.measured, prob.n_z, tcols, 4)
     params = Params.of(model)
     meas = list(prob.measured)
     out: list[SampleEstimate] = []
