@@ -66,7 +66,7 @@ class CosseratBVP:
             a, b = self.cuts[k], self.cuts[k + 1]
             X = a + s * (b - a)
             Y = y[13 * k:13 * k + 13]
-            r, Q, n, m = Y[:3], Y[3:7], Y[7:10], Y[10:13]
+            Q, n, m = Y[3:7], Y[7:10], Y[10:13]  # r does not enter the equations
             R = quat_to_rot(Q)
             rad = self._radius(X)
             A, I = np.pi * rad**2, np.pi * rad**4 / 4

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from tendonsense import analyses, experiments, plotting
+from tendonsense import analyses, plotting
 from tendonsense.estimation import PointForceUnknown, estimate
 from tendonsense.robot import load_robot
 

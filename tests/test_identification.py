@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import PROTOTYPE, ROOT
+from conftest import ROOT
 from tendonsense.forward import solve
 from tendonsense.identification import Snapshot, SnapshotError, identify, read_snapshots
 from tendonsense.robot import load_robot
