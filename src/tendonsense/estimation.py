@@ -184,7 +184,9 @@ def _least_squares(prob: Problem, drive: Drive, params: Params, x0, tol: float):
             r2, e2 = equilibrium(z + dz, res.x)
             total += int(r2.iterations)
             if bool(r2.converged) and e2 @ e2 < cost:
-                small = np.linalg.norm(dz) <= 1e-12 * (1 + np.linalg.norm(z))
+                # a negligible step that was (nearly) the Gauss–Newton step: at the minimum
+                small = (np.linalg.norm(dz) <= 1e-12 * (1 + np.linalg.norm(z))
+                         and damping <= 1e-3)
                 z, res, e, damping = z + dz, r2, e2, max(damping / 4, 1e-9)
                 improved = True
                 if small:
