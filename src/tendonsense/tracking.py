@@ -193,9 +193,8 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
     x0 = None
     for start in range(0, n, chunk):
         idx = range(start, min(n, start + chunk))
-        if x0 is None:  # the first sample from the straight rod, robustly
-            first = estimate_problem(prob, displacements[start], tensions[start], noise)
-            x0 = first.extra["x"] if first.converged else np.zeros(model.nq + prob.n_z)
+        if x0 is None:  # from the straight rod; a sample that fails falls back below
+            x0 = np.zeros(model.nq + prob.n_z)
         # a fixed scan length (padded with the last sample) keeps one compiled tracker
         rows = list(idx) + [idx[-1]] * (chunk - len(idx))
         drives = stacked_drives(prob, T[rows], Y[rows][:, meas])
