@@ -189,3 +189,4 @@ def test_paper_experiments_all_converge():
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout)
     assert out["rows"] == 23 and out["converged"] == 23
+    assert len(out["cases"]) == 23 and all(c["estimate"] is not None for c in out["cases"])

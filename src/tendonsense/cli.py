@@ -287,10 +287,12 @@ def _estimate(args, robot):
 def _experiments(args) -> bool:
     from . import experiments
     robot = load_robot(args.robot)
-    rows = experiments.run(robot, args.csv)
+    prog = _Progress(args, "experiments")
+    rows = experiments.run(robot, args.csv, progress=prog)
+    prog.close()
     summary = experiments.summary(rows)
     if args.json:
-        print(json.dumps({"rows": [{"case": r.case, "applied": r.applied.tolist(),
+        print(json.dumps({"cases": [{"case": r.case, "applied": r.applied.tolist(),
                                     "estimate": None if r.ours is None else r.ours.tolist(),
                                     "paper_estimate": None if r.paper is None else r.paper.tolist(),
                                     "converged": r.converged} for r in rows], **summary}))
@@ -311,7 +313,9 @@ def _identify(args, robot) -> bool:
     from .identification import identify, read_snapshots
     from .robot import robot_to_toml
     snapshots = read_snapshots(args.snapshots, robot)
-    fit = identify(robot, snapshots, args.param or ("young_modulus", "density"))
+    prog = _Progress(args, "identify")
+    fit = identify(robot, snapshots, args.param or ("young_modulus", "density"), progress=prog)
+    prog.close()
     if args.output:
         from .readings import write_text_atomic
         write_text_atomic(args.output, robot_to_toml(fit.robot))
