@@ -119,7 +119,8 @@ def sensitivity_3d(robot: Robot, forces_gf=None, tensions=(1.5, 1.5, 1.5),
         y = truth.displacements
         nominal = estimate_problem(prob, y, T)
         entry = {"force_gF": np.asarray(f_gf, float).tolist(), "force_N": F.tolist(),
-                 "estimate_N": nominal.magnitudes.tolist()}
+                 "estimate_N": nominal.magnitudes.tolist(),
+                 "converged": bool(truth.converged and nominal.converged)}
         for source in ("length", "tension", "friction"):
             amp = getattr(errors, source) / n
             estimates = []
@@ -135,6 +136,7 @@ def sensitivity_3d(robot: Robot, forces_gf=None, tensions=(1.5, 1.5, 1.5),
                 r = estimate_problem(prob, x0=nominal.extra["x"], **kw)
                 estimates.append(r.magnitudes if r.converged else np.full(3, np.nan))
             estimates = np.array(estimates)
+            entry["converged"] &= bool(np.all(np.isfinite(estimates)))
             err = np.linalg.norm(estimates - F, axis=1) / np.linalg.norm(F)
             entry[source] = {"estimates_N": estimates.tolist(),
                              "mean_relative_error": float(np.nanmean(err)),
@@ -170,13 +172,17 @@ def resolution(robot: Robot, forces_gf=None, tensions=(1.5, 1.5, 1.5),
         F = np.asarray(f_gf) * GF
         truth = solve(robot, T, [(L, tuple(F))])
         est = estimate_problem(prob, truth.displacements, T)
+        if not (truth.converged and est.converged):
+            rows.append({"force_gF": np.asarray(f_gf, float).tolist(), "converged": False,
+                         **{f"resolution_{a}_g": float("nan") for a in "xyz"}})
+            continue
         drive = prob.drive(np.array(tensions, float), np.array([truth.displacements[n]
                                                                   for n in names]))
         Jz, JT = reduced_jacobians(prob, est.extra["x"], drive, Params.of(prob.model))
         dT_dF = -np.linalg.solve(JT, Jz)  # (n_t, 3)
         detect = tension_resolution * np.abs(np.array(tensions, float))[:, None]
         delta = np.min(detect / np.maximum(np.abs(dT_dF), 1e-300), axis=0)  # N per component
-        rows.append({"force_gF": np.asarray(f_gf, float).tolist(),
+        rows.append({"force_gF": np.asarray(f_gf, float).tolist(), "converged": True,
                      **{f"resolution_{a}_g": float(d / GF) for a, d in zip("xyz", delta)}})
         if progress:
             progress(k + 1, len(forces_gf))
@@ -187,7 +193,7 @@ def resolution_summary(rows: list[dict]) -> dict:
     out = {}
     for a in "xyz":
         v = np.array([r[f"resolution_{a}_g"] for r in rows])
-        out[a] = {"mean_g": float(v.mean()), "std_g": float(v.std()),
+        out[a] = {"mean_g": float(np.nanmean(v)), "std_g": float(np.nanstd(v)),
                   "paper_mean_g": PAPER_RESOLUTION_G[a][0], "paper_std_g": PAPER_RESOLUTION_G[a][1]}
     return out
 

@@ -200,13 +200,17 @@ def _analysis_run(args):
         write_csv_atomic(out / "sensitivity_single.csv", keys,
                          [[r.get(k, "") for k in keys] for r in rows])
         write_text_atomic(out / "sensitivity_3d.json", json.dumps(entries))
+        ok = all("note" not in r and all(np.isfinite(v) for k, v in r.items()
+                                           if k.endswith("_N")) for r in rows) \
+            and all(e["converged"] for e in entries)
         files += [out / "sensitivity_single.csv", out / "sensitivity_3d.json",
                   plotting.sensitivity_single(rows, out / "sensitivity_single.png"),
                   plotting.ellipsoids(entries, out / "sensitivity_3d.png")]
     elif args.command == "resolution":
         rows = analyses.resolution(robot, progress=prog)
         summary = analyses.resolution_summary(rows)
-        keys = ["force_gF", "resolution_x_g", "resolution_y_g", "resolution_z_g"]
+        ok = all(r["converged"] for r in rows)
+        keys = ["force_gF", "resolution_x_g", "resolution_y_g", "resolution_z_g", "converged"]
         write_csv_atomic(out / "resolution.csv", keys,
                          [[" ".join(map(str, r[k])) if k == "force_gF" else r[k] for k in keys]
                           for r in rows])
@@ -215,6 +219,7 @@ def _analysis_run(args):
         from . import experiments
         table = analyses.compare(robot, args.csv, progress=prog)
         summary = {m: experiments.summary(rows) for m, rows in table.items()}
+        ok = all(r.converged for rows in table.values() for r in rows)
         write_csv_atomic(out / "compare.csv", ["model", "case", "applied", "estimate", "error"],
                          [[m, r.case, " ".join(map(str, r.applied)),
                            "" if r.ours is None else " ".join(map(str, r.ours)), r.error(r.ours)]
@@ -228,7 +233,7 @@ def _analysis_run(args):
     else:
         print(json.dumps(summary, indent=1))
         print("wrote " + ", ".join(str(f) for f in files))
-    return True
+    return ok
 
 
 def _print_result(result, as_json: bool, title: str):
