@@ -62,6 +62,10 @@ def sensitivity_single(robot: Robot, tendon: str = "t1", forces_gf=(-25.0, -75.0
             rows.append(row)
             continue
         nominal = estimate_problem(prob, {tendon: y}, {tendon: T})
+        if not nominal.converged:
+            row["note"] = "estimate failed"
+            rows.append(row)
+            continue
         row["estimate_N"] = float(nominal.magnitudes[0])
         x0 = nominal.extra["x"]
         for sign, tag in ((+1, "plus"), (-1, "minus")):

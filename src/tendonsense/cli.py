@@ -270,8 +270,10 @@ def _estimate(args, robot):
     if not args.output:
         raise UsageError("tendonsense estimate: --readings needs -o OUT.csv")
     measured, samples = rd.read_readings(args.readings, robot)
+    prog = _Progress(args, "estimate")
     results = rd.estimate_readings(robot, measured, samples, args.unknown, _point_forces(args),
-                                   noise, progress=not args.quiet)
+                                   noise, progress=prog)
+    prog.close()
     for s in samples:
         if s.error:
             print(f"tendonsense: {args.readings}: row {s.row} skipped: {s.error}",

@@ -8,7 +8,6 @@ Newton solver, and the marker Jacobian follows by implicit differentiation,
 
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass
 from functools import lru_cache
@@ -22,6 +21,7 @@ import numpy as np
 from .forward import model_for
 from .kinematics import Frames, grid_frames, positions
 from .model import Model
+from .readings import read_csv_rows
 from .robot import Robot
 from .statics import Drive, Params, Unknowns, solve_system, terms
 
@@ -61,14 +61,12 @@ class Identified:
 def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
     """SNAPSHOTS.csv of SPEC §4."""
     path = Path(path)
-    try:
-        with open(path, newline="") as fh:
-            rows = list(csv.DictReader(fh))
-    except OSError as exc:
-        raise SnapshotError(f"{path}: cannot read ({exc.strerror})") from None
+    raw = read_csv_rows(path, SnapshotError)
+    header = raw[0] if raw else []
+    rows = [dict(zip(header, r + [""] * (len(header) - len(r))))
+            for r in raw[1:] if any(c.strip() for c in r)]
     if not rows:
         raise SnapshotError(f"{path}: no snapshot rows")
-    header = list(rows[0].keys())
     load_cols = ("load_X", "load_fx", "load_fy", "load_fz")
     markers = [m for m in robot.marker_names if f"marker_{m}_x" in header]
     for col in header:

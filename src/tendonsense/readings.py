@@ -7,7 +7,6 @@ import csv
 import io
 import math
 import os
-import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,15 +37,20 @@ class Sample:
     error: str | None = None
 
 
+def read_csv_rows(path: Path, error: type[Exception]) -> list[list[str]]:
+    """All rows of a CSV file; an unreadable file raises ``error`` naming it."""
+    try:
+        with open(path, newline="") as fh:
+            return list(csv.reader(fh))
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror})") from None
+
+
 def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sample]]:
     """Parse READINGS.csv: ``time`` (optional), ``tension_<name>``, ``displacement_<name>``,
     optional ``marker_<name>_x/_y/_z``. Returns (measured tendon names, samples)."""
     path = Path(path)
-    try:
-        with open(path, newline="") as fh:
-            rows = list(csv.reader(fh))
-    except OSError as exc:
-        raise ReadingsError(f"{path}: cannot read ({exc.strerror})") from None
+    rows = read_csv_rows(path, ReadingsError)
     if not rows:
         raise ReadingsError(f"{path}: empty file, expected a header row")
     header = [h.strip() for h in rows[0]]
@@ -109,27 +113,16 @@ def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sampl
 
 def estimate_readings(robot: Robot, measured: Sequence[str], samples: Sequence[Sample],
                       unknowns: Sequence[Unknown], point_forces=(), noise: Noise = Noise(),
-                      progress: bool = False) -> list[SampleEstimate | None]:
+                      progress=None) -> list[SampleEstimate | None]:
     """Estimate every good sample of a log in order, each warm-started from the previous
-    one (:func:`tendonsense.tracking.estimate_series`); a bad sample gives None."""
+    one (:func:`tendonsense.tracking.estimate_series`); a bad sample gives None.
+    ``progress(done, total)`` is called as samples complete."""
     prob = problem(robot, measured, unknowns, point_forces)
     good = [s for s in samples if s.error is None]
-    bar = _progress(len(good), progress)
-
-    def tick(done, total):
-        bar.update(done - bar.n)
-
     series = estimate_series(prob, [s.displacements for s in good], [s.tensions for s in good],
-                             noise, progress=tick)
-    bar.close()
+                             noise, progress=progress)
     it = iter(series)
     return [next(it) if s.error is None else None for s in samples]
-
-
-def _progress(total: int, enabled: bool):
-    from tqdm import tqdm
-    return tqdm(total=total, disable=not (enabled and sys.stderr.isatty()), file=sys.stderr,
-                unit="sample", leave=False)
 
 
 def output_rows(robot: Robot, samples, results, n_unknowns: int):
