@@ -47,10 +47,10 @@ def scipy_reference(prob, Y, T, n):
     import jax
     import jax.numpy as jnp
     from scipy.optimize import least_squares
-    from tendonsense.statics import Params, residual
-    params = Params.of(prob.model)
-    fun = jax.jit(lambda x, d: residual(prob.model, prob.measured, x, d, prob.unknowns, params,
-                                        1.0)[0])
+    from tendonsense.statics import residual, scaling
+    s, v = prob.model.structure, prob.model.values
+    sc = scaling(v, prob.measured)
+    fun = jax.jit(lambda x, d: residual(s, v, prob.measured, x, d, prob.unknowns, 1.0, sc)[0])
     x = np.zeros(prob.model.nq + 1)
     d = prob.drive(np.array([T[0], 0, 0]), np.array([Y[0]]))
     fun(jnp.asarray(x), d).block_until_ready()

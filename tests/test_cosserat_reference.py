@@ -33,3 +33,25 @@ def test_markers_agree_with_cosserat_bvp(prototype, case):
         assert err < 1e-3, f"{case}: marker {name} off by {err * 1e3:.3f} mm"
     tip_motion = np.linalg.norm(reference["tip"] - np.array([0.25, 0.0, 0.0]))
     assert tip_motion > 0.03  # the case really deforms the rod
+
+
+def test_a_load_between_grid_nodes_is_as_accurate_as_one_on_a_node(prototype):
+    """A point load is reached by a partial Magnus step from the node below it: at
+    X = 0.140625 it is a node of the 16-interval grid and lies between nodes of the 17-interval
+    one; both agree with the BVP alike."""
+    from tendonsense.forward import model_for
+    from tendonsense.robot import Numerics
+
+    X = 0.140625
+    loads = [(X, (0.0, 0.1, -1.0))]
+    reference = CosseratBVP(prototype, (1.0, 0, 0), loads).solve().markers()
+    errors = {}
+    for n in (16, 17):
+        robot = prototype.replace(strain=RICH, numerics=Numerics(intervals=n))
+        gap = np.min(np.abs(np.asarray(model_for(robot).values.nodes) - X))
+        errors["on" if gap < 1e-12 else "between"] = max(
+            np.linalg.norm(solve(robot, {"t1": 1.0}, loads).markers[k] - p)
+            for k, p in reference.items())
+    assert set(errors) == {"on", "between"}
+    assert errors["between"] < 1e-3
+    assert abs(errors["between"] - errors["on"]) < 1e-5

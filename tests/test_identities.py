@@ -15,6 +15,18 @@ def frictionless(prototype):
     return prototype.with_parameters(friction=0.0)
 
 
+def frames(model, q):
+    return grid_frames(model.structure, model.values, q)
+
+
+def lengths(model, q):
+    return tendons.length_changes(model.structure, model.values, frames(model, q))
+
+
+def actuation(model, q, friction):
+    return tendons.actuation(model.structure, model.values, frames(model, q), friction)
+
+
 def random_q(model, seed, scale=2.0):
     return jnp.asarray(np.random.default_rng(seed).normal(scale=scale, size=model.nq))
 
@@ -23,8 +35,8 @@ def random_q(model, seed, scale=2.0):
 def test_frictionless_actuation_is_minus_tendon_length_gradient(frictionless, seed):
     model = model_for(frictionless)
     q = random_q(model, seed)
-    B = np.asarray(tendons.actuation(model, grid_frames(model, q), jnp.zeros(3)))
-    dy = np.asarray(jax.jacfwd(lambda q: tendons.length_changes(model, grid_frames(model, q)))(q))
+    B = np.asarray(actuation(model, q, jnp.zeros(3)))
+    dy = np.asarray(jax.jacfwd(lambda q: lengths(model, q))(q))
     assert np.abs(B).max() > 1e-3
     np.testing.assert_allclose(B, -dy.T, rtol=0, atol=1e-9 * np.abs(B).max())
 
@@ -33,8 +45,8 @@ def test_friction_breaks_the_identity(prototype):
     """The check above can fail: with μ > 0 B is no longer a gradient."""
     model = model_for(prototype)
     q = random_q(model, 0)
-    B = np.asarray(tendons.actuation(model, grid_frames(model, q), jnp.full(3, 0.4)))
-    dy = np.asarray(jax.jacfwd(lambda q: tendons.length_changes(model, grid_frames(model, q)))(q))
+    B = np.asarray(actuation(model, q, jnp.full(3, 0.4)))
+    dy = np.asarray(jax.jacfwd(lambda q: lengths(model, q))(q))
     assert np.abs(B + dy.T).max() > 1e-3 * np.abs(B).max()
 
 
@@ -42,12 +54,13 @@ def test_friction_breaks_the_identity(prototype):
 def test_body_jacobian_matches_finite_differences_of_pose(prototype, seed):
     model = model_for(prototype)
     q = random_q(model, seed)
-    grid = grid_frames(model, q)
+    grid = frames(model, q)
     eps = 1e-6
     for j in range(model.nq):
         dq = jnp.zeros(model.nq).at[j].set(eps)
-        gp, gm = grid_frames(model, q + dq).g, grid_frames(model, q - dq).g
-        for n in range(0, len(model.nodes), 5):
+        gp = frames(model, q + dq).g
+        gm = frames(model, q - dq).g
+        for n in range(0, len(model.values.nodes), 5):
             dg = (np.asarray(gp[n]) - np.asarray(gm[n])) / (2 * eps)
             eta = np.asarray(lie.vee(jnp.asarray(np.linalg.inv(np.asarray(grid.g[n])) @ dg)))
             np.testing.assert_allclose(np.asarray(grid.J[n][:, j]), eta, atol=1e-6)

@@ -17,7 +17,7 @@ from . import experiments
 from .estimation import PointForceUnknown, estimate_problem, problem, reduced_jacobians
 from .forward import forward_kinematics, solve
 from .robot import Robot
-from .statics import Params
+from .model import Values
 
 GF = 9.80665e-3  # N per gram-force
 
@@ -36,9 +36,9 @@ class Errors:
     friction: float = 0.15
 
 
-def _params_with_friction(prob, factors) -> Params:
-    p = Params.of(prob.model)
-    return p._replace(friction=p.friction * jnp.asarray(factors, float))
+def _values_with_friction(prob, factors) -> Values:
+    v = prob.model.values
+    return v._replace(friction=v.friction * jnp.asarray(factors, float))
 
 
 def sensitivity_single(robot: Robot, tendon: str = "t1", forces_gf=(-25.0, -75.0, -125.0),
@@ -75,7 +75,7 @@ def sensitivity_single(robot: Robot, tendon: str = "t1", forces_gf=(-25.0, -75.0
                 "tension": dict(displacements={tendon: y},
                                 tensions={tendon: T * (1 + sign * errors.tension)}),
                 "friction": dict(displacements={tendon: y}, tensions={tendon: T},
-                                 params=_params_with_friction(
+                                 values=_values_with_friction(
                                      prob, [1 + sign * errors.friction * (i == j)
                                             for i in range(len(robot.tendons))])),
             }
@@ -136,7 +136,7 @@ def sensitivity_3d(robot: Robot, forces_gf=None, tensions=(1.5, 1.5, 1.5),
                 elif source == "tension":
                     kw["tensions"] = {m: T[m] * (1 + s[i] * amp) for i, m in enumerate(names)}
                 else:
-                    kw["params"] = _params_with_friction(prob, 1 + s * amp)
+                    kw["values"] = _values_with_friction(prob, 1 + s * amp)
                 r = estimate_problem(prob, x0=nominal.extra["x"], **kw)
                 estimates.append(r.magnitudes if r.converged else np.full(3, np.nan))
             estimates = np.array(estimates)
@@ -182,7 +182,7 @@ def resolution(robot: Robot, forces_gf=None, tensions=(1.5, 1.5, 1.5),
             continue
         drive = prob.drive(np.array(tensions, float), np.array([truth.displacements[n]
                                                                   for n in names]))
-        Jz, JT = reduced_jacobians(prob, est.extra["x"], drive, Params.of(prob.model))
+        Jz, JT = reduced_jacobians(prob, est.extra["x"], drive, prob.model.values)
         dT_dF = -np.linalg.solve(JT, Jz)  # (n_t, 3)
         detect = tension_resolution * np.abs(np.array(tensions, float))[:, None]
         delta = np.min(detect / np.maximum(np.abs(dT_dF), 1e-300), axis=0)  # N per component

@@ -11,7 +11,6 @@ from dataclasses import dataclass
 from typing import Mapping, Protocol
 
 import numpy as np
-from numpy.polynomial import legendre
 
 #: strain modes in the order of ξ = [κx, κy, κz, εx, εy, εz]
 MODES = ("torsion", "bending_y", "bending_z", "elongation", "shear_y", "shear_z")
@@ -50,11 +49,16 @@ class LegendreBasis:
                 start += k
         return out
 
-    def __call__(self, X) -> np.ndarray:
-        X = np.atleast_1d(np.asarray(X, dtype=float))
-        s = 2.0 * X / self.length - 1.0
-        Phi = np.zeros((X.size, 6, self.n))
-        for mode, sl in self.blocks():
-            row = MODES.index(mode)
-            Phi[:, row, sl] = legendre.legvander(s, self.degrees[mode])
-        return Phi
+    def __call__(self, X, length=None, xp=np):
+        """``Φξ(X)``, shape (len(X), 6, n); with ``xp=jax.numpy`` X and ``length`` may be traced
+        (a point at a run-time X, differentiable in X)."""
+        X = xp.atleast_1d(xp.asarray(X, dtype=float))
+        s = 2.0 * X / (self.length if length is None else length) - 1.0
+        P = [xp.ones_like(s), s]  # Bonnet: (k+1) P_{k+1} = (2k+1) s P_k − k P_{k−1}
+        for k in range(1, max(self.degrees.values(), default=0)):
+            P.append(((2 * k + 1) * s * P[k] - k * P[k - 1]) / (k + 1))
+        zero = xp.zeros_like(s)
+        rows = {mode: [P[k] for k in range(self.degrees[mode] + 1)] for mode in self.degrees}
+        cols = [[rows[mode][k] if m == mode else zero for m in MODES]
+                for mode, sl in self.blocks() for k in range(sl.stop - sl.start)]
+        return xp.stack([xp.stack(c, axis=-1) for c in cols], axis=-1)

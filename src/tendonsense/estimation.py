@@ -19,10 +19,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .forward import check_point_forces, finite, make_result, model_for, tendon_vector
-from .model import Model
+from .model import Model, Structure, Values
 from .result import Result
 from .robot import Robot
-from .statics import (Drive, NewtonResult, Params, Unknowns, shape_outputs, solve_system,
+from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, shape_outputs, solve_system,
                       terms)
 
 
@@ -67,7 +67,8 @@ class Problem:
     model: Model
     measured: tuple[int, ...]
     unknowns: Unknowns
-    known_forces: np.ndarray
+    known_forces: np.ndarray  # (n_p, 3), zero where an unknown force acts
+    load_X: np.ndarray  # (n_p,) known forces, then the unknown ones
     gravity: np.ndarray
 
     @property
@@ -76,7 +77,8 @@ class Problem:
 
     def drive(self, tensions, targets) -> Drive:
         return Drive(jnp.asarray(tensions, float), jnp.asarray(self.known_forces),
-                     jnp.asarray(self.gravity), jnp.asarray(targets, float))
+                     jnp.asarray(self.load_X), jnp.asarray(self.gravity),
+                     jnp.asarray(targets, float))
 
 
 def problem(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
@@ -101,7 +103,6 @@ def problem(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
         if not 0.0 <= u.X <= robot.rod.length:
             raise ValueError(f"unknown force: X = {u.X:g} m is outside the rod "
                              f"[0, {robot.rod.length:g}]")
-    model = model_for(robot, X_known + tuple(u.X for u in forces))
     n_known = len(X_known)
     Fz = np.zeros((n_p, n_known + len(forces), 3))
     az = np.zeros((n_p, 3))
@@ -115,43 +116,45 @@ def problem(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
             Fz[i, n_known + k] = u.direction
             k += 1
     F = np.concatenate([F_known, np.zeros((len(forces), 3))])
+    X = np.concatenate([X_known, [u.X for u in forces]])
     unk = Unknowns(jnp.zeros((len(robot.tendons), n_p)), jnp.asarray(Fz), jnp.asarray(az))
     idx = tuple(robot.tendon_names.index(n) for n in measured)
-    return Problem(robot, model, idx, unk, F, gravity)
+    return Problem(robot, model_for(robot), idx, unk, F, X, gravity)
 
 
-@lru_cache(maxsize=None)
-def _jacobians_fn(model: Model, measured: tuple[int, ...]):
+@lru_cache(maxsize=CACHE_SIZE)
+def _jacobians_fn(structure: Structure, measured: tuple[int, ...]):
     """``(∂E/∂q, ∂E/∂z, ∂E/∂T, ∂y_meas/∂q)`` for the unscaled equilibrium ``E = Kq − BT − F``."""
 
-    def parts(q, z, T, drive, unknowns, params):
-        t = terms(model, q, z, drive._replace(tensions=T), unknowns, params, 1.0)
-        E = params.young_modulus * (jnp.asarray(model.K_unit) @ q) - t.B @ t.tensions - t.external
+    def parts(q, z, T, drive, unknowns, values):
+        t = terms(structure, values, q, z, drive._replace(tensions=T), unknowns, 1.0)
+        E = values.young_modulus * (values.stiffness() @ q) - t.B @ t.tensions - t.external
         return E, t.y[np.array(measured, int)]
 
-    def jac(q, z, T, drive, unknowns, params):
+    def jac(q, z, T, drive, unknowns, values):
         (Eq, Ez, ET), (yq, _, _) = jax.jacfwd(parts, argnums=(0, 1, 2))(q, z, T, drive, unknowns,
-                                                                     params)
+                                                                     values)
         return Eq, Ez, ET, yq
 
     return jax.jit(jac)
 
 
-def reduced_jacobians(prob: Problem, x, drive, params):
+def reduced_jacobians(prob: Problem, x, drive, values: Values):
     """Reduced Jacobians of the measured lengths w.r.t. the magnitudes and the tensions, with
     the equilibrium eliminated: ``dy/dz = −y_q E_q⁻¹ E_z``, ``dy/dT = −y_q E_q⁻¹ E_T``."""
     nq = prob.model.nq
-    Eq, Ez, ET, yq = (np.asarray(a) for a in _jacobians_fn(prob.model, prob.measured)(
-        jnp.asarray(x[:nq]), jnp.asarray(x[nq:]), drive.tensions, drive, prob.unknowns, params))
+    Eq, Ez, ET, yq = (np.asarray(a) for a in _jacobians_fn(prob.model.structure, prob.measured)(
+        jnp.asarray(x[:nq]), jnp.asarray(x[nq:]), drive.tensions, drive, prob.unknowns, values))
     sol = np.linalg.solve(Eq, np.concatenate([Ez, ET], axis=1))
     return -yq @ sol[:, :prob.n_z], -yq @ sol[:, prob.n_z:]
 
 
-def _least_squares(prob: Problem, drive: Drive, params: Params, x0, tol: float):
+def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float):
     """min ‖y(q) − y_meas‖² over the magnitudes z, q solving equilibrium (eq. 17), by
     Levenberg–Marquardt; returns (x, converged, iterations, newton result, misfit)."""
     nq, n_z = prob.model.nq, prob.n_z
-    statics_unknowns = Unknowns.none(prob.model)
+    structure = prob.model.structure
+    statics_unknowns = Unknowns.none(len(prob.robot.tendons), prob.load_X.size)
     y_meas = np.asarray(drive.targets)
     sel = list(prob.measured)
 
@@ -160,8 +163,8 @@ def _least_squares(prob: Problem, drive: Drive, params: Params, x0, tol: float):
             forces=drive.forces + jnp.tensordot(jnp.asarray(z), prob.unknowns.forces, axes=1),
             gravity=drive.gravity + jnp.asarray(z) @ prob.unknowns.gravity,
             targets=jnp.zeros(0))
-        res = solve_system(prob.model, (), d, statics_unknowns, params, q0)
-        return res, shape_outputs(prob.model, res.x)[2][sel] - y_meas
+        res = solve_system(structure, values, (), d, statics_unknowns, q0)
+        return res, shape_outputs(structure, values, res.x)[2][sel] - y_meas
 
     z = np.zeros(n_z) if x0 is None else np.asarray(x0[nq:], float)
     res, e = equilibrium(z, None if x0 is None else x0[:nq])
@@ -170,7 +173,7 @@ def _least_squares(prob: Problem, drive: Drive, params: Params, x0, tol: float):
     for _ in range(100):
         if not bool(res.converged):
             break
-        Jz, _ = reduced_jacobians(prob, np.concatenate([np.asarray(res.x), z]), drive, params)
+        Jz, _ = reduced_jacobians(prob, np.concatenate([np.asarray(res.x), z]), drive, values)
         g = Jz.T @ e
         scale = np.linalg.norm(Jz) * np.linalg.norm(e)
         if np.linalg.norm(e) <= 1e-13 or np.linalg.norm(g) <= tol * scale:
@@ -216,34 +219,34 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
 
 
 def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Noise(),
-                     x0=None, params: Params | None = None) -> Result:
-    """:func:`estimate` on a prepared :func:`problem`; ``params`` overrides the robot file's
-    material parameters (e.g. a friction error) without recompiling."""
+                     x0=None, values: Values | None = None) -> Result:
+    """:func:`estimate` on a prepared :func:`problem`; ``values`` overrides the robot file's
+    values (e.g. a friction error, :meth:`Model.with_values`) without recompiling."""
     robot, model = prob.robot, prob.model
     T = tendon_vector(robot, tensions, "tension")
     y_all = tendon_vector(robot, displacements, "displacement")
     drive = prob.drive(T, y_all[list(prob.measured)])
-    params = Params.of(model) if params is None else params
+    values = model.values if values is None else values
     tol = robot.numerics.tolerance
     if len(prob.measured) == prob.n_z:
-        res = solve_system(model, prob.measured, drive, prob.unknowns, params, x0)
+        res = solve_system(model.structure, values, prob.measured, drive, prob.unknowns, x0)
         x, converged, iterations, misfit = np.asarray(res.x), bool(res.converged), \
             int(res.iterations), 0.0
     else:
-        x, converged, iterations, res, misfit = _least_squares(prob, drive, params, x0, tol)
+        x, converged, iterations, res, misfit = _least_squares(prob, drive, values, x0, tol)
     z = x[model.nq:]
-    sens, sigma = _uncertainty(prob, x, drive, params, T, noise)
-    return make_result(model, x, T, NewtonResult(x, converged, iterations, res.residual),
+    sens, sigma = _uncertainty(prob, x, drive, values, T, noise)
+    return make_result(model, x, T, NewtonResult(x, converged, iterations, res.residual, 0),
                        magnitudes=z, sigma=sigma, sensitivity=sens,
                        extra={"x": x, "length_misfit": misfit})
 
 
-def _uncertainty(prob: Problem, x, drive, params, T, noise: Noise):
+def _uncertainty(prob: Problem, x, drive, values, T, noise: Noise):
     """First-order sensitivity of the magnitudes to every measurement and the 1-σ band:
     ``dz/dm = −(∂e/∂z)⁺ ∂e/∂m`` with ``e = y(q(z, T)) − y_meas`` (exact for square problems,
     Gauss–Newton for least squares)."""
     names = prob.robot.tendon_names
-    Jz, JT = reduced_jacobians(prob, x, drive, params)
+    Jz, JT = reduced_jacobians(prob, x, drive, values)
     pinv = np.linalg.pinv(Jz)
     dz_dy = pinv  # ∂e/∂y_meas = −I
     dz_dT = -pinv @ JT

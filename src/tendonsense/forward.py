@@ -1,28 +1,36 @@
 """Forward problems: statics (tensions → shape) and kinematics (tendon lengths → shape and
-tensions, eq. 16)."""
+tensions, eq. 16), one at a time or batched over values, tensions and loads, and the
+derivatives of a solution with respect to the values."""
 
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from functools import lru_cache
 from typing import Mapping, Sequence
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .model import Model
+from . import tendons
+from .kinematics import grid_frames
+from .model import VALUE_NAMES, Model
 from .result import Result
 from .robot import Robot
-from .statics import Drive, NewtonResult, Params, Unknowns, shape_outputs, solve_system
+from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, derivatives, marker_positions,
+                      newton_solver, shape_outputs, solve_system)
 
 #: a point force: (X, (fx, fy, fz)) in the global frame, N
 PointForce = tuple[float, Sequence[float]]
 
 
 @lru_cache(maxsize=64)
-def model_for(robot: Robot, load_points: tuple[float, ...] = ()) -> Model:
-    """The discretised model of ``robot`` with point loads at ``load_points`` (cached)."""
-    return Model.build(robot, load_points)
+def model_for(robot: Robot) -> Model:
+    """The discretised model of ``robot`` (cached; models of robots that differ only in
+    their numbers share every compiled program)."""
+    return Model.build(robot)
 
 
 def finite(name: str, value) -> float:
@@ -47,7 +55,7 @@ def tendon_vector(robot: Robot, values: Mapping[str, float] | None, what: str) -
 
 
 def check_point_forces(robot: Robot, point_forces: Sequence[PointForce]):
-    """Validated ``(X tuple, forces (n, 3))`` of known point forces."""
+    """Validated ``(X (n,), forces (n, 3))`` of known point forces."""
     Xs, Fs = [], []
     for i, (X, f) in enumerate(point_forces):
         X = finite(f"point force {i + 1} X", X)
@@ -59,13 +67,13 @@ def check_point_forces(robot: Robot, point_forces: Sequence[PointForce]):
             raise ValueError(f"point force {i + 1}: the force must be 3 finite numbers")
         Xs.append(X)
         Fs.append(f)
-    return tuple(Xs), np.array(Fs, float).reshape(-1, 3)
+    return np.array(Xs, float), np.array(Fs, float).reshape(-1, 3)
 
 
 def make_result(model: Model, x, tensions, res: NewtonResult, **extra) -> Result:
     robot = model.robot
     q = np.asarray(x[: model.nq])
-    markers, backbone, y = shape_outputs(model, q)
+    markers, backbone, y = shape_outputs(model.structure, model.values, q)
     return Result(
         q=q, tensions=dict(zip(robot.tendon_names, map(float, tensions))),
         displacements=dict(zip(robot.tendon_names, map(float, y))),
@@ -74,16 +82,22 @@ def make_result(model: Model, x, tensions, res: NewtonResult, **extra) -> Result
         residual=float(res.residual), **extra)
 
 
+def _statics_drive(robot: Robot, tensions, point_forces) -> Drive:
+    T = tendon_vector(robot, tensions, "tension")
+    X, F = check_point_forces(robot, point_forces)
+    return Drive(jnp.asarray(T), jnp.asarray(F), jnp.asarray(X), jnp.asarray(robot.gravity),
+                 jnp.zeros(0))
+
+
 def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
           point_forces: Sequence[PointForce] = (), q0=None) -> Result:
     """Forward statics: the equilibrium shape under tendon ``tensions`` (N, by tendon name;
     missing tendons are slack), gravity and known global ``point_forces`` [(X, f), ...]."""
-    T = tendon_vector(robot, tensions, "tension")
-    X, F = check_point_forces(robot, point_forces)
-    model = model_for(robot, X)
-    drive = Drive(jnp.asarray(T), jnp.asarray(F), jnp.asarray(robot.gravity), jnp.zeros(0))
-    res = solve_system(model, (), drive, Unknowns.none(model), Params.of(model), q0)
-    return make_result(model, res.x, T, res)
+    model = model_for(robot)
+    drive = _statics_drive(robot, tensions, point_forces)
+    res = solve_system(model.structure, model.values, (), drive,
+                       Unknowns.none(len(robot.tendons), drive.load_X.shape[0]), q0)
+    return make_result(model, res.x, np.asarray(drive.tensions), res)
 
 
 def forward_kinematics(robot: Robot, displacements: Mapping[str, float],
@@ -94,19 +108,174 @@ def forward_kinematics(robot: Robot, displacements: Mapping[str, float],
     if not displacements:
         raise ValueError("forward kinematics needs at least one tendon displacement")
     y = tendon_vector(robot, displacements, "displacement")
-    T = tendon_vector(robot, tensions, "tension")
     measured = tuple(robot.tendon_names.index(n) for n in displacements)
     clash = [n for n in displacements if n in (tensions or {})]
     if clash:
         raise ValueError(f"tendon {clash[0]}: give its displacement or its tension, not both")
-    X, F = check_point_forces(robot, point_forces)
-    model = model_for(robot, X)
+    model = model_for(robot)
+    drive = _statics_drive(robot, tensions, point_forces)._replace(
+        targets=jnp.asarray(y[list(measured)]))
     n_z = len(measured)
     select = np.zeros((len(robot.tendons), n_z))
     select[list(measured), np.arange(n_z)] = 1.0
-    unknowns = Unknowns.none(model, n_z)._replace(tensions=jnp.asarray(select))
-    drive = Drive(jnp.asarray(T), jnp.asarray(F), jnp.asarray(robot.gravity),
-                  jnp.asarray(y[list(measured)]))
-    res = solve_system(model, measured, drive, unknowns, Params.of(model), q0)
+    unknowns = Unknowns.none(len(robot.tendons), drive.load_X.shape[0], n_z)._replace(
+        tensions=jnp.asarray(select))
+    res = solve_system(model.structure, model.values, measured, drive, unknowns, q0)
     z = np.asarray(res.x[model.nq:])
-    return make_result(model, res.x, T + select @ z, res)
+    return make_result(model, res.x, np.asarray(drive.tensions) + select @ z, res)
+
+
+# ----------------------------------------------------------------------------- derivatives
+
+@dataclass(frozen=True, eq=False)
+class Derivatives:
+    """Derivatives of a forward-statics solution with respect to each input ``θ`` by name:
+    ``q[θ]`` has shape ``(nq, *θ)``, ``markers[θ]`` ``(n_m, 3, *θ)``, ``displacements[θ]``
+    ``(n_t, *θ)``."""
+
+    q: dict[str, np.ndarray]
+    markers: dict[str, np.ndarray]
+    displacements: dict[str, np.ndarray]
+
+
+@lru_cache(maxsize=CACHE_SIZE)
+def _output_jacobian_fn(structure):
+    def outputs(q, values):
+        return (marker_positions(structure, values, q),
+                tendons.length_changes(structure, values, grid_frames(structure, values, q)))
+
+    return jax.jit(jax.jacfwd(outputs))
+
+
+def solution_derivatives(robot: Robot, tensions: Mapping[str, float] | None = None,
+                         point_forces: Sequence[PointForce] = (),
+                         wrt: Sequence[str] = ("young_modulus",), q=None) -> Derivatives:
+    """Derivatives of the forward-statics solution by implicit differentiation of the
+    equilibrium (exact; no finite differences) with respect to values (``young_modulus``,
+    ``poisson_ratio``, ``density``, ``friction`` per tendon) and inputs (``tensions``,
+    ``forces``, ``load_X``, ``gravity``). ``q`` is the solution if already known.
+
+    >>> d = solution_derivatives(robot, {"t1": 2.0}, [(0.2, (0, 0, -0.1))],
+    ...                          wrt=("young_modulus", "load_X"))
+    >>> d.markers["load_X"][:, :, 0]  # how each marker moves per metre the load moves
+    """
+    model = model_for(robot)
+    drive = _statics_drive(robot, tensions, point_forces)
+    unknowns = Unknowns.none(len(robot.tendons), drive.load_X.shape[0])
+    if q is None:
+        res = solve_system(model.structure, model.values, (), drive, unknowns)
+        if not bool(res.converged):
+            raise ValueError("the forward-statics solution did not converge: no derivatives")
+        q = res.x
+    q = jnp.asarray(q, float)
+    dq = derivatives(model.structure, model.values, (), q, drive, unknowns, wrt)
+    Pq, Yq = (np.asarray(a) for a in _output_jacobian_fn(model.structure)(q, model.values))
+    markers, disp = {}, {}
+    for k, d in dq.items():
+        flat = d.reshape(model.nq, -1)
+        markers[k] = (Pq.reshape(-1, model.nq) @ flat).reshape(Pq.shape[:2] + d.shape[1:])
+        disp[k] = (Yq @ flat).reshape((Yq.shape[0],) + d.shape[1:])
+    return Derivatives(dq, markers, disp)
+
+
+# ----------------------------------------------------------------------------- batches
+
+@dataclass(frozen=True, eq=False)
+class BatchResult:
+    """Forward-statics solutions of a batch (leading axis: sample); lengths in m."""
+
+    q: np.ndarray  # (N, nq)
+    markers: dict[str, np.ndarray]  # name -> (N, 3), global
+    displacements: dict[str, np.ndarray]  # tendon -> (N,), eq. 9
+    converged: np.ndarray  # (N,) bool
+    iterations: np.ndarray  # (N,)
+
+
+@lru_cache(maxsize=CACHE_SIZE)
+def _batch_fn(structure):
+    solver = newton_solver(structure, (), 0)
+
+    def one(drive, values):
+        x0 = jnp.zeros(structure.nq)
+        unknowns = Unknowns.none(structure.n_tendons, drive.load_X.shape[0])
+        res = solver(x0, drive, unknowns, values)
+        y = tendons.length_changes(structure, values, grid_frames(structure, values, res.x))
+        return res.x, marker_positions(structure, values, res.x), y, res.converged, \
+            res.iterations
+
+    def batch(drives, values):
+        axes = jax.tree_util.tree_map(lambda a: None, values)._replace(
+            **{k: 0 for k in VALUE_NAMES})
+        return jax.vmap(one, in_axes=(0, axes))(drives, values)
+
+    return jax.jit(batch)
+
+
+def solve_batch(robot: Robot, tensions, point_forces: Sequence[PointForce] = (),
+                values: Mapping[str, object] | None = None, chunk: int = 128,
+                workers: int = 2) -> BatchResult:
+    """Forward statics over a batch in one vectorised call, for sweeps and Monte Carlo.
+
+    ``tensions``: (N, n_t) array (tendons in file order) or {tendon: (N,) array}.
+    ``point_forces``: [(X, f), ...] where X may be (N,) and f (N, 3). ``values``: {name: (N,)}
+    for ``young_modulus``, ``poisson_ratio``, ``density``, ``friction`` ((N,) one μ for all
+    tendons, or (N, n_t)). Every sample starts from the straight rod. One compiled program per
+    robot structure serves every batch (padded to ``chunk`` samples), run on ``workers``
+    threads.
+
+    >>> E = np.linspace(0.8e6, 1.2e6, 1000)
+    >>> out = solve_batch(robot, {"t1": np.full(1000, 2.0)}, values={"young_modulus": E})
+    >>> out.markers["tip"].shape, out.converged.all()
+    ((1000, 3), True)
+    """
+    model = model_for(robot)
+    names = robot.tendon_names
+    if isinstance(tensions, Mapping):
+        cols = {k: np.atleast_1d(np.asarray(v, float)) for k, v in tensions.items()}
+        for k in cols:
+            if k not in names:
+                raise ValueError(f"tension {k}: no such tendon (robot has {', '.join(names)})")
+        n = max((c.size for c in cols.values()), default=1)
+        T = np.stack([np.broadcast_to(cols.get(k, np.zeros(1)), (n,)) for k in names], axis=1)
+    else:
+        T = np.asarray(tensions, float).reshape(-1, len(names))
+    n = T.shape[0]
+    X = np.stack([np.broadcast_to(np.asarray(x, float), (n,)) for x, _ in point_forces], axis=1) \
+        if point_forces else np.zeros((n, 0))
+    F = np.stack([np.broadcast_to(np.asarray(f, float), (n, 3)) for _, f in point_forces],
+                 axis=1) if point_forces else np.zeros((n, 0, 3))
+    if not (np.all(np.isfinite(T)) and np.all(np.isfinite(X)) and np.all(np.isfinite(F))):
+        raise ValueError("batch: tensions and point forces must be finite")
+    if np.any((X < 0) | (X > robot.rod.length)):
+        raise ValueError(f"batch: a point force X is outside the rod [0, {robot.rod.length:g}]")
+    v = model.values
+    given = dict(values or {})
+    for k in given:
+        if k not in VALUE_NAMES:
+            raise ValueError(f"{k}: not a value that can be varied (one of "
+                             f"{', '.join(VALUE_NAMES)})")
+    full = {}
+    for k in VALUE_NAMES:
+        a = np.asarray(given.get(k, getattr(v, k)), float)
+        if k == "friction" and k in given and a.ndim <= 1:  # one μ for every tendon
+            a = a.reshape(-1, 1)
+        full[k] = np.broadcast_to(a, (n, *np.shape(getattr(v, k))))
+        if not np.all(np.isfinite(full[k])):
+            raise ValueError(f"batch: {k} must be finite")
+    g = np.broadcast_to(np.asarray(robot.gravity, float), (n, 3))
+    fn = _batch_fn(model.structure)
+
+    def run(idx):
+        rows = np.concatenate([idx, np.full(chunk - idx.size, idx[-1])])
+        drives = Drive(jnp.asarray(T[rows]), jnp.asarray(F[rows]), jnp.asarray(X[rows]),
+                       jnp.asarray(g[rows]), jnp.zeros((chunk, 0)))
+        vals = v._replace(**{k: jnp.asarray(full[k][rows]) for k in VALUE_NAMES})
+        out = jax.device_get(fn(drives, vals))
+        return [a[: idx.size] for a in out]
+
+    pieces = [np.arange(s, min(n, s + chunk)) for s in range(0, n, chunk)]
+    with ThreadPoolExecutor(max(1, workers)) as pool:
+        parts = list(pool.map(run, pieces))
+    q, mk, y, conv, its = (np.concatenate([p[i] for p in parts]) for i in range(5))
+    return BatchResult(q, {m: mk[:, i] for i, m in enumerate(robot.marker_names)},
+                       {t: y[:, j] for j, t in enumerate(names)}, conv.astype(bool), its)

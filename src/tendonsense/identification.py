@@ -19,11 +19,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .forward import model_for
-from .kinematics import Frames, grid_frames, positions
-from .model import Model
+from .model import Structure
 from .readings import read_csv_rows
 from .robot import Robot
-from .statics import Drive, Params, Unknowns, solve_system, terms
+from .statics import CACHE_SIZE, Drive, Unknowns, marker_positions, solve_system, terms
 
 PARAMETERS = ("young_modulus", "density", "friction")
 _DESCRIPTIVE = ("source", "note", "comment", "time", "id", "name")
@@ -138,26 +137,24 @@ def _check(robot: Robot, snapshots: Sequence[Snapshot], params: Sequence[str]):
                             "observable): add a known load or tendon tension")
 
 
-@lru_cache(maxsize=None)
-def _snapshot_fns(model: Model):
-    """Jitted marker positions and the Jacobians (E_q, E_params, p_q) of one snapshot."""
-    nodes, offsets = model.marker_nodes, jnp.asarray(model.marker_offsets)
-    unknowns = Unknowns.none(model)
+@lru_cache(maxsize=CACHE_SIZE)
+def _snapshot_fns(structure: Structure):
+    """Jitted marker positions and the Jacobians (E_q, E_θ, p_q) of one snapshot, θ the
+    values :data:`PARAMETERS` by name."""
+    unknowns = Unknowns.none(structure.n_tendons, 1)
 
-    def markers(q):
-        grid = grid_frames(model, q)
-        return positions(Frames(grid.g[nodes], grid.J[nodes]), offsets)
+    def equilibrium(q, theta, values, drive):
+        values = values._replace(**theta)
+        t = terms(structure, values, q, jnp.zeros(0), drive, unknowns, 1.0)
+        return values.young_modulus * (values.stiffness() @ q) - t.B @ t.tensions - t.external
 
-    def equilibrium(q, params, drive):
-        t = terms(model, q, jnp.zeros(0), drive, unknowns, params, 1.0)
-        return params.young_modulus * (jnp.asarray(model.K_unit) @ q) - t.B @ t.tensions \
-            - t.external
+    def jacobians(q, values, drive):
+        theta = {k: getattr(values, k) for k in PARAMETERS}
+        Eq, Et = jax.jacfwd(equilibrium, argnums=(0, 1))(q, theta, values, drive)
+        return Eq, Et, jax.jacfwd(lambda q: marker_positions(structure, values, q))(q)
 
-    def jacobians(q, params, drive):
-        Eq, Ep = jax.jacfwd(equilibrium, argnums=(0, 1))(q, params, drive)
-        return Eq, Ep, jax.jacfwd(markers)(q)
-
-    return jax.jit(markers), jax.jit(jacobians)
+    return (jax.jit(lambda q, values: marker_positions(structure, values, q)),
+            jax.jit(jacobians))
 
 
 def identify(robot: Robot, snapshots: Sequence[Snapshot],
@@ -167,48 +164,44 @@ def identify(robot: Robot, snapshots: Sequence[Snapshot],
     to the snapshots' markers, starting from the robot file's values."""
     params = tuple(dict.fromkeys(params))
     _check(robot, snapshots, params)
-    loads = sorted({s.load[0] for s in snapshots if s.load is not None})
-    model = model_for(robot, tuple(loads))
+    model = model_for(robot)
+    structure, base = model.structure, model.values
     names = robot.marker_names
     gravity = jnp.asarray(robot.gravity, float)
+    unknowns = Unknowns.none(len(robot.tendons), 1)
     drives, meas, idx = [], [], []
     for s in snapshots:
         T = np.array([s.tensions.get(n, 0.0) for n in robot.tendon_names])
-        F = np.zeros((len(loads), 3))
-        if s.load is not None:
-            F[loads.index(s.load[0])] = s.load[1]
-        drives.append(Drive(jnp.asarray(T), jnp.asarray(F), gravity, jnp.zeros(0)))
+        X, F = (s.load[0], s.load[1]) if s.load is not None else (robot.rod.length, (0, 0, 0))
+        drives.append(Drive(jnp.asarray(T), jnp.asarray([F], float), jnp.asarray([X], float),
+                            gravity, jnp.zeros(0)))
         sel = [names.index(m) for m in s.markers]
         idx.append(sel)
         meas.append(np.array([s.markers[m] for m in s.markers]))
-    markers_fn, jac_fn = _snapshot_fns(model)
+    markers_fn, jac_fn = _snapshot_fns(structure)
 
-    base = Params.of(model)
     theta0 = {"young_modulus": float(base.young_modulus), "density": float(base.density),
               "friction": max(float(np.mean(np.asarray(base.friction))) if robot.tendons
                               else 0.0, 0.05)}
     scale = np.array([theta0[p] for p in params])
 
-    def make_params(log_ratio):
+    def make_values(log_ratio):
         v = dict(zip(params, scale * np.exp(log_ratio)))
-        return Params(jnp.asarray(v.get("young_modulus", base.young_modulus)),
-                      jnp.asarray(v.get("density", base.density)),
-                      jnp.full(len(robot.tendons), v["friction"]) if "friction" in v
-                      else base.friction), v
+        return model.with_values(**v).values, v
 
     def evaluate(log_ratio, q_start):
         """Marker residuals, their Jacobian w.r.t. log θ and the snapshot shapes, or None if
         an equilibrium fails."""
-        p, values = make_params(log_ratio)
-        dtheta = np.array([values[n] for n in params])  # d/d log θ = θ d/dθ
+        values, chosen = make_values(log_ratio)
+        dtheta = np.array([chosen[n] for n in params])  # d/d log θ = θ d/dθ
         res, jac, qs = [], [], []
         for k, d in enumerate(drives):
-            sol = solve_system(model, (), d, Unknowns.none(model), p, q_start[k])
+            sol = solve_system(structure, values, (), d, unknowns, q_start[k])
             if not bool(sol.converged):
                 return None
-            res.append((np.asarray(markers_fn(sol.x))[idx[k]] - meas[k]).ravel())
-            Eq, Ep, Pq = jac_fn(sol.x, p, d)
-            dE = np.stack([_param_column(Ep, n) for n in params], axis=1) * dtheta
+            res.append((np.asarray(markers_fn(sol.x, values))[idx[k]] - meas[k]).ravel())
+            Eq, Et, Pq = jac_fn(sol.x, values, d)
+            dE = np.stack([_param_column(Et, n) for n in params], axis=1) * dtheta
             dq = -np.linalg.solve(np.asarray(Eq), dE)
             jac.append((np.asarray(Pq)[idx[k]] @ dq).reshape(-1, len(params)))
             qs.append(sol.x)
@@ -244,17 +237,17 @@ def identify(robot: Robot, snapshots: Sequence[Snapshot],
         if not improved:
             converged = gn <= 1e-5
             break
-    _, fitted = make_params(theta)
+    _, fitted = make_values(theta)
     fitted = {k: float(v) for k, v in fitted.items()}
     new_robot = robot.with_parameters(**fitted)
     return Identified(fitted, _rmse(r), initial_rmse, bool(converged), it, new_robot)
 
 
-def _param_column(Ep: Params, name: str) -> np.ndarray:
+def _param_column(Et: dict, name: str) -> np.ndarray:
     """∂E/∂θ for one parameter (friction: one μ shared by every tendon)."""
     if name == "friction":
-        return np.asarray(Ep.friction).sum(axis=1)
-    return np.asarray(getattr(Ep, name))
+        return np.asarray(Et["friction"]).sum(axis=1)
+    return np.asarray(Et[name])
 
 
 def _rmse(r: np.ndarray) -> float:

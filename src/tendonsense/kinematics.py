@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import lie
-from .model import Model, PointSet
+from .model import PointSet, Structure, Values
 
 _XI_STAR = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0])
 _C = np.sqrt(3.0) / 12.0
@@ -46,44 +46,47 @@ def magnus(q, h, Phi1, Phi2):
     return Omega, dOmega
 
 
-def _step(Omega, dOmega):
-    """exp(Ω) and ``A = dexp_Ω ∂Ω/∂q`` of every step: ``J' = Ad_{exp Ω}⁻¹ (J + A)``."""
-    return _vexp(Omega), _vdexp(Omega) @ dOmega
-
-
-def grid_poses(model: Model, q) -> jax.Array:
-    """Poses (n_nodes, 4, 4) alone, without the Jacobians."""
-    Omega, _ = magnus(q, jnp.asarray(model.h), model.Phi1, model.Phi2)
+def grid_poses(values: Values, q, points: PointSet | None = None):
+    """Poses (n_nodes, 4, 4) alone, without the Jacobians; with ``points``, also theirs."""
+    Omega, _ = magnus(q, values.h, values.Phi1, values.Phi2)
     eye = jnp.eye(4, dtype=Omega.dtype)[None]
-    return jnp.asarray(model.base) @ jnp.concatenate(
-        [eye, jax.lax.associative_scan(jnp.matmul, _vexp(Omega))])
-
-
-def grid_frames(model: Model, q, points: PointSet | None = None):
-    """Poses and body Jacobians at every grid node (base pose included); with ``points``, also
-    at those points (one batched Magnus/exp evaluation for both)."""
-    n = model.h.size
-    h, Phi1, Phi2 = model.h, model.Phi1, model.Phi2
-    if points is not None:
-        h, Phi1, Phi2 = (np.concatenate([a, b]) for a, b in
-                         ((h, points.h), (Phi1, points.Phi1), (Phi2, points.Phi2)))
-    E, A = _step(*magnus(q, jnp.asarray(h), Phi1, Phi2))
-    grid = _chain(model, E[:n], A[:n])
+    g = values.base @ jnp.concatenate([eye, jax.lax.associative_scan(jnp.matmul, _vexp(Omega))])
     if points is None:
+        return g
+    Om, _ = magnus(q, points.h, points.Phi1, points.Phi2)
+    return g, g[points.start] @ _vexp(Om)
+
+
+def grid_frames(structure: Structure, values: Values, q, *points: PointSet):
+    """Poses and body Jacobians at every grid node (base pose included); with ``points``, also
+    at each of those point sets (one batched Magnus/exp evaluation for all)."""
+    n = values.h.shape[0]
+    sets = [PointSet(None, values.h, values.Phi1, values.Phi2), *points]
+    Omega, dOmega = magnus(q, *(jnp.concatenate([getattr(p, f) for p in sets])
+                                for f in ("h", "Phi1", "Phi2")))
+    E, A = _vexp(Omega), _vdexp(Omega) @ dOmega
+    grid = _chain(structure, values, E[:n], A[:n])
+    if not points:
         return grid
-    g0, J0 = grid.g[points.start], grid.J[points.start]
-    return grid, Frames(g0 @ E[n:], _vAd_inv(E[n:]) @ (J0 + A[n:]))
+    out, k = [grid], n
+    for p in points:
+        m = p.h.shape[0]
+        Ek, Ak = E[k:k + m], A[k:k + m]
+        g0, J0 = grid.g[p.start], grid.J[p.start]
+        out.append(Frames(g0 @ Ek, _vAd_inv(Ek) @ (J0 + Ak)))
+        k += m
+    return tuple(out)
 
 
-def _chain(model, E, A) -> Frames:
+def _chain(structure, values, E, A) -> Frames:
     """Recursion in closed form: with ``G_i = E_0 ⋯ E_{i−1}`` (a parallel prefix product),
     ``Ad_{G_i} J_i = Σ_{k<i} Ad_{G_k} A_k`` (a cumulative sum)."""
     eye = jnp.eye(4, dtype=E.dtype)[None]
     G = jnp.concatenate([eye, jax.lax.associative_scan(jnp.matmul, E)])
     AdG = _vAd(G)
     C = jnp.cumsum(AdG[:-1] @ A, axis=0)
-    J = jnp.concatenate([jnp.zeros((1, 6, model.nq), E.dtype), _vAd_inv(G[1:]) @ C])
-    return Frames(jnp.asarray(model.base) @ G, J)
+    J = jnp.concatenate([jnp.zeros((1, 6, structure.nq), E.dtype), _vAd_inv(G[1:]) @ C])
+    return Frames(values.base @ G, J)
 
 
 def positions(frames: Frames, offsets=None) -> jax.Array:

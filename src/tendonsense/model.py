@@ -1,82 +1,123 @@
-"""A robot discretised for computation: the Magnus grid, the basis sampled at its quadrature
-points, the stiffness matrix and the indices of disks, markers and point loads on the grid.
+"""A robot discretised for computation, split in two: its :class:`Structure` (what shapes the
+compiled programs: basis degrees, tendon grouping, solver settings) and its :class:`Values`
+(every number, an array pytree passed to those programs at run time).
 
-Everything here is built once with numpy; the compiled functions close over it as constants.
+Two robots with the same structure share every compiled program, whatever their numbers. The
+values are built once with numpy; points at a run-time X (markers, point loads, the backbone)
+are reached by a partial Magnus step from the grid node below them (:func:`points_at`), so
+they are differentiable in X.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .basis import LegendreBasis
-from .robot import Robot
+from .robot import Numerics, Robot
 
 _Z = np.sqrt(3.0) / 6.0  # Zannah / two-point Gauss abscissae at 1/2 -+ sqrt(3)/6
 
 
-@dataclass(frozen=True, eq=False)
-class PointSet:
-    """Material points reached by a partial Magnus step of length ``h`` from grid node
-    ``start``; ``Phi1``/``Phi2`` are the basis at that step's two Zannah points."""
+@dataclass(frozen=True)
+class Structure:
+    """Everything that shapes a compiled program (hashable; the key of every cache).
 
-    X: np.ndarray
-    start: np.ndarray
-    h: np.ndarray
-    Phi1: np.ndarray
-    Phi2: np.ndarray
+    Array shapes (numbers of grid nodes, disks, markers, loads) key the programs too, through
+    JAX's own tracing; no number of the robot does."""
 
+    degrees: tuple[tuple[str, int], ...]  # Legendre degree per active strain mode
+    groups: tuple[tuple[int, ...], ...]  # tendons with the same number of disks
+    n_tendons: int
+    numerics: Numerics
 
-@dataclass(frozen=True, eq=False)
-class TendonGroup:
-    """Tendons with the same number of disks, computed together."""
-
-    index: np.ndarray  # (k,) positions in the robot's tendon list
-    nodes: np.ndarray  # (k, nd) grid-node index of every disk
-    offsets: np.ndarray  # (k, nd, 3) cross-section offsets d_i
-    rest_length: np.ndarray  # (k,) l* of eq. 9, the path length on the straight rod
-
-
-@dataclass(frozen=True, eq=False)
-class Model:
-    """``Model.build(robot, load_points)``: ``load_points`` are the X of every point load
-    (known or unknown) so that they fall on grid nodes."""
-
-    robot: Robot
-    basis: LegendreBasis
-    nodes: np.ndarray  # grid abscissae X_0 = 0 < ... < X_n = L
-    Phi1: np.ndarray  # (n_int, 6, nq) at each interval's first Zannah point
-    Phi2: np.ndarray
-    K_unit: np.ndarray  # eq. 8a per unit Young's modulus
-    gravity_points: PointSet
-    gravity_weights: np.ndarray  # quadrature weight x area, so that ∫ρA f dX = ρ Σ w f
-    tendon_groups: tuple[TendonGroup, ...]
-    marker_nodes: np.ndarray
-    marker_offsets: np.ndarray
-    load_points: tuple[float, ...]
-    load_nodes: np.ndarray
-    base: np.ndarray  # 4x4 base pose
-    L_inv_unit: np.ndarray  # L⁻¹ with K_unit = L Lᵀ (scales equilibrium residuals)
-    length_stiffness_unit: np.ndarray  # (n_t,) ≈ 1 / (bᵀ K_unit⁻¹ b), b = ∂y/∂q at q = 0
+    @property
+    def basis(self) -> LegendreBasis:
+        return LegendreBasis(1.0, dict(self.degrees))
 
     @property
     def nq(self) -> int:
         return self.basis.n
 
+
+class PointSet(NamedTuple):
+    """Material points reached by a partial Magnus step of length ``h`` from grid node
+    ``start``; ``Phi1``/``Phi2`` are the basis at that step's two Zannah points."""
+
+    start: jax.Array
+    h: jax.Array
+    Phi1: jax.Array
+    Phi2: jax.Array
+
+
+class TendonGroup(NamedTuple):
+    """Tendons with the same number of disks, computed together."""
+
+    nodes: jax.Array  # (k, nd) grid-node index of every disk
+    offsets: jax.Array  # (k, nd, 3) cross-section offsets d_i
+    rest_length: jax.Array  # (k,) l* of eq. 9, the path length on the straight rod
+
+
+class Values(NamedTuple):
+    """Every number of a discretised robot (a pytree of arrays, traced at run time)."""
+
+    length: jax.Array
+    nodes: jax.Array  # grid abscissae X_0 = 0 < ... < X_n = L
+    Phi1: jax.Array  # (n_int, 6, nq) at each interval's first Zannah point
+    Phi2: jax.Array
+    K_axial: jax.Array  # eq. 8a with Σ = diag(0, Jy, Jz, A, 0, 0): the part ∝ E
+    K_shear: jax.Array  # eq. 8a with Σ = diag(Jx, 0, 0, 0, A, A): the part ∝ G
+    stretch_unit: jax.Array  # (nq, n_t) small-strain ∂y/∂q at q = 0 (residual scaling)
+    gravity_points: PointSet  # two-point Gauss rule on every interval
+    gravity_weights: jax.Array  # quadrature weight x area, so that ∫ρA f dX = ρ Σ w f
+    tendons: tuple[TendonGroup, ...]
+    marker_X: jax.Array  # (n_m,)
+    marker_offsets: jax.Array  # (n_m, 3)
+    base: jax.Array  # 4x4 base pose
+    young_modulus: jax.Array
+    poisson_ratio: jax.Array
+    density: jax.Array
+    friction: jax.Array  # (n_t,) Capstan μ per tendon
+    energy_floor: jax.Array  # residual floor per √E (an absolute tolerance)
+
+    @property
+    def h(self):
+        return self.nodes[1:] - self.nodes[:-1]
+
+    def stiffness(self):
+        """``K`` per unit E (eq. 8a, ``G = E / 2(1 + ν)``)."""
+        return self.K_axial + self.K_shear / (2.0 * (1.0 + self.poisson_ratio))
+
+
+#: values a user may vary at run time by name (:meth:`Model.with_values`, batched solves)
+VALUE_NAMES = ("young_modulus", "poisson_ratio", "density", "friction")
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """A robot with its structure and values: ``Model.build(robot)``."""
+
+    robot: Robot
+    structure: Structure
+    values: Values
+
+    @property
+    def nq(self) -> int:
+        return self.structure.nq
+
     @property
     def n_tendons(self) -> int:
-        return len(self.robot.tendons)
-
-    @property
-    def h(self) -> np.ndarray:
-        return np.diff(self.nodes)
+        return self.structure.n_tendons
 
     @staticmethod
-    def build(robot: Robot, load_points=()) -> "Model":
+    def build(robot: Robot) -> "Model":
         rod, L = robot.rod, robot.rod.length
         basis = LegendreBasis(L, dict(robot.strain))
-        special = [0.0, L, *rod.breakpoints(), *(m.X for m in robot.markers), *load_points]
+        special = [0.0, L, *rod.breakpoints()]
         for t in robot.tendons:
             special += list(t.disks)
         nodes = _grid(L, robot.numerics.intervals, np.array(special, float))
@@ -88,66 +129,79 @@ class Model:
         X = (nodes[:-1, None] + 0.5 * h[:, None] * (xg + 1)).ravel()
         W = (0.5 * h[:, None] * wg).ravel()
         Phi = basis(X)
-        S = rod.section_stiffness(X)
-        K = np.einsum("k,kai,ka,kaj->ij", W, Phi, S, Phi)
-        L_inv = np.linalg.inv(np.linalg.cholesky(K))
+        r = rod.radius(X)
+        A, I = np.pi * r**2, np.pi * r**4 / 4.0
+        zero = 0 * A
+        K_axial = np.einsum("k,kai,ka,kaj->ij", W, Phi, np.stack([zero, I, I, A, zero, zero], 1), Phi)
+        K_shear = np.einsum("k,kai,ka,kaj->ij", W, Phi, np.stack([2 * I, zero, zero, zero, A, A], 1),
+                            Phi)
         # small-strain tendon stretch y ≈ ∫ (εx + κy dz − κz dy) dX, for residual scaling only
         b = np.zeros((basis.n, len(robot.tendons)))
         for j, t in enumerate(robot.tendons):
             d = t.offset(X, L)
-            w = np.stack([0 * X, d[:, 2], -d[:, 1], 1 + 0 * X, 0 * X, 0 * X], axis=1)
+            w = np.stack([zero, d[:, 2], -d[:, 1], 1 + zero, zero, zero], axis=1)
             b[:, j] = np.einsum("k,kai,ka->i", W, Phi, w)
-        k_len = 1.0 / np.maximum(np.sum((L_inv @ b) ** 2, axis=0), 1e-300)
 
         # gravity: two-point Gauss rule on every interval
         xg2 = np.array([0.5 - _Z, 0.5 + _Z])
         start = np.repeat(np.arange(h.size), 2)
         hsub = (h[:, None] * xg2).ravel()
-        gp = _pointset(basis, nodes, start, hsub)
-        gw = np.repeat(h / 2, 2) * rod.area(gp.X)
+        gp = PointSet(start, hsub, basis(nodes[start] + (0.5 - _Z) * hsub),
+                      basis(nodes[start] + (0.5 + _Z) * hsub))
+        gw = np.repeat(h / 2, 2) * rod.area(nodes[start] + hsub)
 
-        index = {x: i for i, x in enumerate(nodes)}
-        snap = lambda x: index[_nearest(nodes, x)]
-        groups = []
+        groups, tendon_values = [], []
         for nd in sorted({len(t.disks) for t in robot.tendons}):
             idx = [i for i, t in enumerate(robot.tendons) if len(t.disks) == nd]
-            X = np.array([robot.tendons[i].disks for i in idx])
-            d = np.stack([robot.tendons[i].offset(X[k], L) for k, i in enumerate(idx)])
-            straight = d + X[..., None] * np.array([1.0, 0.0, 0.0])
-            groups.append(TendonGroup(
-                np.array(idx), np.vectorize(snap)(X).astype(int), d,
+            Xd = np.array([robot.tendons[i].disks for i in idx])
+            d = np.stack([robot.tendons[i].offset(Xd[k], L) for k, i in enumerate(idx)])
+            straight = d + Xd[..., None] * np.array([1.0, 0.0, 0.0])
+            groups.append(tuple(idx))
+            tendon_values.append(TendonGroup(
+                np.argmin(np.abs(nodes - Xd[..., None]), axis=-1), d,
                 np.linalg.norm(np.diff(straight, axis=1), axis=2).sum(axis=1)))
-        return Model(
-            robot=robot, basis=basis, nodes=nodes, Phi1=basis(z1), Phi2=basis(z2), K_unit=K,
-            gravity_points=gp, gravity_weights=gw, tendon_groups=tuple(groups),
-            marker_nodes=np.array([snap(m.X) for m in robot.markers], int),
+        base = np.eye(4)
+        base[:3, :3] = np.array(robot.base_rotation)
+        base[:3, 3] = robot.base_position
+        r0 = rod.radius_knots[0][1]
+        values = Values(
+            length=np.float64(L), nodes=nodes, Phi1=basis(z1), Phi2=basis(z2),
+            K_axial=K_axial, K_shear=K_shear, stretch_unit=b, gravity_points=gp,
+            gravity_weights=gw, tendons=tuple(tendon_values),
+            marker_X=np.array([m.X for m in robot.markers], float),
             marker_offsets=np.array([m.offset for m in robot.markers], float).reshape(-1, 3),
-            load_points=tuple(float(x) for x in load_points),
-            load_nodes=np.array([snap(x) for x in load_points], int),
-            base=_pose(robot), L_inv_unit=L_inv, length_stiffness_unit=k_len)
+            base=base, young_modulus=np.float64(rod.young_modulus),
+            poisson_ratio=np.float64(rod.poisson_ratio), density=np.float64(rod.density),
+            friction=np.array([t.friction for t in robot.tendons], float).reshape(-1),
+            energy_floor=np.float64(1e-6 * np.sqrt(r0**4 / L)))
+        structure = Structure(tuple(robot.strain), tuple(groups), len(robot.tendons),
+                              robot.numerics)
+        return Model(robot, structure, jax.tree_util.tree_map(jnp.asarray, values))
 
-    def pointset(self, X) -> PointSet:
-        """Arbitrary material points, each reached from the grid node at or below it."""
-        X = np.clip(np.atleast_1d(np.asarray(X, float)), 0.0, self.nodes[-1])
-        start = np.clip(np.searchsorted(self.nodes, X, side="right") - 1, 0, self.nodes.size - 2)
-        return _pointset(self.basis, self.nodes, start, X - self.nodes[start])
-
-
-def _pose(robot: Robot) -> np.ndarray:
-    g = np.eye(4)
-    g[:3, :3] = np.array(robot.base_rotation)
-    g[:3, 3] = robot.base_position
-    return g
-
-
-def _pointset(basis, nodes, start, hsub) -> PointSet:
-    x0 = nodes[start]
-    return PointSet(X=x0 + hsub, start=np.asarray(start, int), h=np.asarray(hsub, float),
-                    Phi1=basis(x0 + (0.5 - _Z) * hsub), Phi2=basis(x0 + (0.5 + _Z) * hsub))
+    def with_values(self, **changes) -> "Model":
+        """The same model with other values by name (:data:`VALUE_NAMES`); ``friction`` is one
+        μ for every tendon or one per tendon. Reuses every compiled program."""
+        for name in changes:
+            if name not in VALUE_NAMES:
+                raise ValueError(f"{name}: not a value that can be changed (one of "
+                                 f"{', '.join(VALUE_NAMES)})")
+        v = {k: jnp.asarray(x, float) for k, x in changes.items()}
+        if "friction" in v:
+            v["friction"] = jnp.broadcast_to(v["friction"], self.values.friction.shape)
+        return Model(self.robot, self.structure, self.values._replace(**v))
 
 
-def _nearest(nodes, x):
-    return nodes[int(np.argmin(np.abs(nodes - x)))]
+def points_at(structure: Structure, values: Values, X) -> PointSet:
+    """Material points at ``X`` (traced, any shape → flat), each reached by a partial Magnus
+    step from the grid node at or below it; differentiable in X."""
+    X = jnp.clip(jnp.ravel(jnp.asarray(X, float)), 0.0, values.length)
+    n_int = values.nodes.shape[0] - 1
+    start = jnp.clip(jnp.searchsorted(values.nodes, X, side="right") - 1, 0, n_int - 1)
+    x0 = values.nodes[start]
+    h = X - x0
+    basis = structure.basis
+    return PointSet(start, h, basis(x0 + (0.5 - _Z) * h, values.length, jnp),
+                    basis(x0 + (0.5 + _Z) * h, values.length, jnp))
 
 
 def _grid(L: float, n: int, special: np.ndarray) -> np.ndarray:

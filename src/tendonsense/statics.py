@@ -3,8 +3,12 @@
 Forward statics, forward kinematics (eq. 16) and square estimation (eq. 17) are the same
 system: unknowns ``x = [q; z]`` where ``z`` enters the tensions and loads linearly, and the
 equations are equilibrium plus ``y_j(q) = y_j^meas`` for the measured tendons. It is solved by
-Newton's method with the exact (forward-mode autodiff) Jacobian and an Armijo line search,
-compiled whole; load continuation from the straight rod takes over when the full load fails.
+Newton's method with the exact (forward-mode autodiff) Jacobian and an Armijo line search;
+when the full load fails, adaptive load continuation from the straight rod takes over, inside
+the same compiled program and within a bounded number of evaluations.
+
+Every compiled program is keyed by the model's :class:`~tendonsense.model.Structure` (and the
+measured tendons and number of unknowns); every number is an input at run time.
 """
 
 from __future__ import annotations
@@ -18,30 +22,28 @@ import numpy as np
 
 from . import loads, tendons
 from .kinematics import Frames, grid_frames, positions
-from .model import Model
+from .model import VALUE_NAMES, Structure, Values, points_at
 
+#: compiled programs kept per kind (each keyed by structure); older ones are released
+CACHE_SIZE = 16
 
-class Params(NamedTuple):
-    """Material parameters that identification may vary."""
-
-    young_modulus: jax.Array
-    density: jax.Array
-    friction: jax.Array  # (n_t,)
-
-    @staticmethod
-    def of(model: Model) -> "Params":
-        r = model.robot
-        return Params(jnp.asarray(r.rod.young_modulus), jnp.asarray(r.rod.density),
-                      jnp.asarray([t.friction for t in r.tendons], float).reshape(-1))
+#: points along the rod at which results report the backbone
+BACKBONE_POINTS = 101
 
 
 class Drive(NamedTuple):
-    """Known inputs, all scaled together by the continuation parameter."""
+    """Known inputs; tensions, forces, gravity and targets are scaled together by the
+    continuation parameter."""
 
     tensions: jax.Array  # (n_t,)
-    forces: jax.Array  # (n_p, 3), global, at model.load_points
+    forces: jax.Array  # (n_p, 3), global
+    load_X: jax.Array  # (n_p,) where the point loads act, m
     gravity: jax.Array  # (3,) acceleration
     targets: jax.Array  # (n_m,) measured tendon length changes
+
+
+#: inputs of a solve that :func:`derivatives` differentiates by name, besides the values
+DRIVE_NAMES = ("tensions", "forces", "load_X", "gravity", "targets")
 
 
 class Unknowns(NamedTuple):
@@ -53,9 +55,9 @@ class Unknowns(NamedTuple):
     gravity: jax.Array  # (n_z, 3)
 
     @staticmethod
-    def none(model: Model, n_z: int = 0) -> "Unknowns":
-        return Unknowns(jnp.zeros((model.n_tendons, n_z)),
-                        jnp.zeros((n_z, len(model.load_points), 3)), jnp.zeros((n_z, 3)))
+    def none(n_tendons: int, n_loads: int = 0, n_z: int = 0) -> "Unknowns":
+        return Unknowns(jnp.zeros((n_tendons, n_z)), jnp.zeros((n_z, n_loads, 3)),
+                        jnp.zeros((n_z, 3)))
 
 
 class Terms(NamedTuple):
@@ -68,35 +70,54 @@ class Terms(NamedTuple):
     external: jax.Array  # F(q) of eq. 8b
 
 
-def terms(model: Model, q, z, drive: Drive, unknowns: Unknowns, params: Params, lam) -> Terms:
-    grid, gp = grid_frames(model, q, model.gravity_points)
-    B = tendons.actuation(model, grid, params.friction)
+def terms(structure: Structure, values: Values, q, z, drive: Drive, unknowns: Unknowns,
+          lam) -> Terms:
     T = lam * drive.tensions + unknowns.tensions @ z
-    F = lam * drive.forces + jnp.tensordot(z, unknowns.forces, axes=1)
     a = lam * drive.gravity + z @ unknowns.gravity
-    at_loads = Frames(grid.g[model.load_nodes], grid.J[model.load_nodes])
-    external = (loads.point_forces(at_loads, F)
-                + loads.gravity(gp, jnp.asarray(model.gravity_weights), params.density, a))
-    return Terms(grid, B, tendons.length_changes(model, grid), T, external)
+    if drive.load_X.shape[0]:
+        grid, gp, at_loads = grid_frames(structure, values, q, values.gravity_points,
+                                         points_at(structure, values, drive.load_X))
+        F = lam * drive.forces + jnp.tensordot(z, unknowns.forces, axes=1)
+        point = loads.point_forces(at_loads, F)
+    else:
+        grid, gp = grid_frames(structure, values, q, values.gravity_points)
+        point = 0.0
+    B = tendons.actuation(structure, values, grid, values.friction)
+    external = point + loads.gravity(gp, values.gravity_weights, values.density, a)  # eq. 8b
+    return Terms(grid, B, tendons.length_changes(structure, values, grid), T, external)
 
 
-def residual(model: Model, measured: tuple[int, ...], x, drive, unknowns, params, lam,
-             with_actuation: bool = False):
-    """Scaled residual ``[L⁻¹(Kq − BT − F); √k (y − y_meas)]`` (K = LLᵀ, k the tendons'
-    length stiffness: both parts in √J) and the size of the load in the same norm; with
-    ``with_actuation`` also ``∂r/∂T`` (the residual is linear in the tensions)."""
-    nq = model.nq
+class Scaling(NamedTuple):
+    """Residual scaling: ``L⁻¹`` with ``K = L Lᵀ`` and the measured tendons' length stiffness
+    ``√k ≈ 1 / ‖L⁻¹ b‖`` (b = ∂y/∂q at q = 0), both in √J."""
+
+    L_inv: jax.Array
+    root_k: jax.Array
+
+
+def scaling(values: Values, measured: tuple[int, ...]) -> Scaling:
+    L_inv = jnp.linalg.inv(jnp.linalg.cholesky(values.stiffness()))
+    b = values.stretch_unit[:, np.array(measured, int)]
+    root_k = 1.0 / jnp.maximum(jnp.linalg.norm(L_inv @ b, axis=0), 1e-150)
+    E = jnp.sqrt(values.young_modulus)
+    return Scaling(L_inv / E, root_k * E)
+
+
+def residual(structure: Structure, values: Values, measured: tuple[int, ...], x, drive,
+             unknowns, lam, sc: Scaling, with_actuation: bool = False):
+    """Scaled residual ``[L⁻¹(Kq − BT − F); √k (y − y_meas)]`` (both parts in √J) and the size
+    of the load in the same norm; with ``with_actuation`` also ``∂r/∂T`` (the residual is
+    linear in the tensions)."""
+    nq = structure.nq
     q, z = x[:nq], x[nq:]
-    t = terms(model, q, z, drive, unknowns, params, lam)
-    L_inv = jnp.asarray(model.L_inv_unit) / jnp.sqrt(params.young_modulus)
+    t = terms(structure, values, q, z, drive, unknowns, lam)
     load = t.B @ t.tensions + t.external
-    E = L_inv @ (params.young_modulus * (jnp.asarray(model.K_unit) @ q) - load)
+    E = sc.L_inv @ (values.young_modulus * (values.stiffness() @ q) - load)  # eq. 7
     sel = np.array(measured, int)
-    k = jnp.sqrt(params.young_modulus * model.length_stiffness_unit[sel])
-    e = k * (t.y[sel] - lam * drive.targets)
-    out = jnp.concatenate([E, e]), jnp.linalg.norm(L_inv @ load)
+    e = sc.root_k * (t.y[sel] - lam * drive.targets)
+    out = jnp.concatenate([E, e]), jnp.linalg.norm(sc.L_inv @ load)
     if with_actuation:
-        dr_dT = jnp.concatenate([-lam * (L_inv @ t.B), jnp.zeros((sel.size, t.B.shape[1]))])
+        dr_dT = jnp.concatenate([-lam * (sc.L_inv @ t.B), jnp.zeros((sel.size, t.B.shape[1]))])
         return (*out, dr_dT)
     return out
 
@@ -104,106 +125,158 @@ def residual(model: Model, measured: tuple[int, ...], x, drive, unknowns, params
 class NewtonResult(NamedTuple):
     x: jax.Array
     converged: jax.Array
-    iterations: jax.Array
+    iterations: jax.Array  # accepted Newton steps, continuation stages included
     residual: jax.Array  # ‖r‖ / (load size + floor)
+    evaluations: jax.Array  # residual + Jacobian evaluations
 
 
-@lru_cache(maxsize=None)
-def newton_solver(model: Model, measured: tuple[int, ...], n_z: int):
-    """Compiled damped Newton for the system with tendons ``measured`` and ``n_z`` unknowns:
-    ``solve(x0, drive, unknowns, params, lam) -> NewtonResult``.
+def _merit(r):
+    m = 0.5 * jnp.dot(r, r)
+    return jnp.where(jnp.isfinite(m), m, jnp.inf)
+
+
+@lru_cache(maxsize=CACHE_SIZE)
+def newton_solver(structure: Structure, measured: tuple[int, ...], n_z: int):
+    """Compiled solver for the system with tendons ``measured`` and ``n_z`` unknowns:
+    ``solve(x0, drive, unknowns, values) -> NewtonResult``.
 
     One loop whose every pass evaluates the residual and its Jacobian at a trial point
-    ``x + α dx``: accepted (Armijo on ½‖r‖²) it becomes the iterate and gives the next Newton
-    step, rejected it halves α.
+    ``x + α dx`` at the load level ``λ``: accepted (Armijo on ½‖r‖²) it becomes the iterate
+    and gives the next Newton step, rejected it halves α. A level whose Newton iteration fails
+    (α underflows or ``max_iterations`` evaluations) falls back: the full load from ``x0`` falls back
+    to continuation from the straight rod at λ = 1/4, a continuation step to half its size.
+    Every pass counts against a budget of ``10 max_iterations`` evaluations.
     """
-    num = model.robot.numerics
-    r0 = model.robot.rod.radius_knots[0][1]
-    floor_unit = 1e-6 * np.sqrt(r0**4 / model.robot.rod.length)  # energy floor per √E
+    num = structure.numerics
+    budget = 10 * num.max_iterations
 
-    def solve(x0, drive, unknowns, params, lam):
-        args = (drive, unknowns, params, lam)
-        floor = floor_unit * jnp.sqrt(params.young_modulus)
+    def solve(x0, drive, unknowns, values):
+        sc = scaling(values, measured)
+        floor = values.energy_floor * jnp.sqrt(values.young_modulus)
 
-        def linearise(x):
-            f = lambda x: residual(model, measured, x, *args)  # noqa: E731
+        def linearise(x, lam):
+            f = lambda x: residual(structure, values, measured, x, drive, unknowns, lam, sc)  # noqa: E731
             return jax.jacfwd(lambda x: (f(x)[0], f(x)), has_aux=True)(x)
 
-        def merit(r):
-            m = 0.5 * jnp.dot(r, r)
-            return jnp.where(jnp.isfinite(m), m, jnp.inf)
+        def restart(st, x, lam_good, target, dlam, phase):
+            return dict(st, x=x, x_good=x, lam_good=lam_good, target=target, dlam=dlam,
+                        phase=phase, m=jnp.asarray(jnp.inf), dx=jnp.zeros_like(x),
+                        alpha=jnp.asarray(1.0), it=jnp.asarray(-1), level_evals=jnp.asarray(0))
 
         def cond(st):
-            return (st["status"] == 0) & (st["it"] < num.max_iterations)
+            return (st["status"] == 0) & (st["evals"] < budget)
 
         def body(st):
             xt = st["x"] + st["alpha"] * st["dx"]
-            Jt, (rt, st_load) = linearise(xt)
-            ok = merit(rt) <= (1 - 2e-4 * st["alpha"]) * st["m"]
-            conv = jnp.linalg.norm(rt) <= num.tolerance * (st_load + floor)
-            dx_new = jnp.linalg.solve(Jt, -rt)
-            accept = dict(x=xt, r=rt, load=st_load, m=merit(rt), dx=dx_new, alpha=1.0,
-                          it=st["it"] + 1, status=jnp.where(conv, 1, 0))
-            give_up = st["alpha"] < 2.0**-40
-            reject = dict(st, alpha=st["alpha"] / 2, status=jnp.where(give_up, 2, 0))
-            return jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), accept, reject)
+            Jt, (rt, load_t) = linearise(xt, st["target"])
+            ok = jnp.isfinite(_merit(rt)) & (_merit(rt) <= (1 - 2e-4 * st["alpha"]) * st["m"])
+            conv = ok & (jnp.linalg.norm(rt) <= num.tolerance * (load_t + floor))
+            accepted = dict(st, x=xt, r=rt, load=load_t, m=_merit(rt),
+                            dx=jnp.linalg.solve(Jt, -rt), alpha=jnp.asarray(1.0),
+                            it=st["it"] + 1, total=st["total"] + 1)
+            rejected = dict(st, alpha=st["alpha"] / 2)
+            new = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), accepted, rejected)
+            new["evals"] = st["evals"] + 1
+            new["level_evals"] = st["level_evals"] + 1
+            failed = ~conv & ((new["level_evals"] >= num.max_iterations)
+                              | (~ok & ((new["alpha"] < 2.0**-40) | (st["it"] < 0))))
+            done = conv & (st["target"] >= 1.0)
+            # a level reached below full load: the next one, a larger step
+            dlam_up = jnp.minimum(0.5, 1.5 * st["dlam"])
+            up = restart(new, xt, st["target"], jnp.minimum(1.0, st["target"] + dlam_up),
+                         dlam_up, st["phase"])
+            # a level failed: continuation from the straight rod, or a smaller step
+            dlam_down = jnp.where(st["phase"] == 0, 0.25, st["dlam"] / 2)
+            lam_from = jnp.where(st["phase"] == 0, 0.0, st["lam_good"])
+            x_from = jnp.where(st["phase"] == 0, jnp.zeros_like(xt), st["x_good"])
+            down = restart(new, x_from, lam_from, lam_from + dlam_down, dlam_down, 1)
+            down["status"] = jnp.where(dlam_down < 1e-3, 2, 0)
+            pick = lambda a, b, c: jnp.where(conv & ~done, a, jnp.where(failed, b, c))  # noqa: E731
+            out = jax.tree_util.tree_map(pick, up, down, new)
+            out["status"] = jnp.where(done, 1, out["status"])
+            return out
 
         n = x0.shape[0]
-        st = dict(x=x0, r=jnp.zeros(n), load=jnp.asarray(0.0), m=jnp.asarray(jnp.inf),
-                  dx=jnp.zeros(n), alpha=jnp.asarray(1.0), it=jnp.asarray(-1),
-                  status=jnp.asarray(0))
+        st = dict(r=jnp.zeros(n), load=jnp.asarray(0.0), total=jnp.asarray(0),
+                  evals=jnp.asarray(0), status=jnp.asarray(0))
+        st = restart(st, x0, jnp.asarray(0.0), jnp.asarray(1.0), jnp.asarray(0.25),
+                     jnp.asarray(0))
         st = jax.lax.while_loop(cond, body, st)
-        return NewtonResult(st["x"], st["status"] == 1, st["it"],
-                            jnp.linalg.norm(st["r"]) / (st["load"] + floor))
+        return NewtonResult(st["x"], st["status"] == 1, st["total"],
+                            jnp.linalg.norm(st["r"]) / (st["load"] + floor), st["evals"])
 
     return jax.jit(solve)
 
 
-def solve_system(model: Model, measured: tuple[int, ...], drive: Drive, unknowns: Unknowns,
-                 params: Params, x0=None) -> NewtonResult:
-    """Newton from ``x0`` (default: the straight rod); if the full load fails, load
-    continuation from the unloaded straight rod with adaptive steps."""
+def solve_system(structure: Structure, values: Values, measured: tuple[int, ...],
+                 drive: Drive, unknowns: Unknowns, x0=None) -> NewtonResult:
+    """Newton from ``x0`` (default: the straight rod; a warm start may give q alone), load
+    continuation from the straight rod if the full load fails."""
     n_z = unknowns.gravity.shape[0]
-    solver = newton_solver(model, tuple(measured), n_z)
-    zero = jnp.zeros(model.nq + n_z)
+    solver = newton_solver(structure, tuple(measured), n_z)
+    zero = jnp.zeros(structure.nq + n_z)
     if x0 is None:
         x0 = zero
-    else:  # a warm start may give q alone
+    else:
         x0 = jnp.asarray(x0, float)
-        x0 = jnp.concatenate([x0, zero[x0.size:]]) if x0.size == model.nq else x0
-    res = solver(x0, drive, unknowns, params, 1.0)
-    if bool(res.converged):
-        return res
-    total = int(res.iterations)
-    lam, x, dlam = 0.0, zero, 0.25
-    while lam < 1.0:
-        target = min(1.0, lam + dlam)
-        r = solver(x, drive, unknowns, params, target)
-        total += int(r.iterations)
-        if bool(r.converged):
-            lam, x, dlam = target, r.x, min(0.5, dlam * 1.5)
-            res = r
-        else:
-            dlam /= 2
-            if dlam < 1e-3:
-                return NewtonResult(r.x, jnp.asarray(False), jnp.asarray(total), r.residual)
-    return NewtonResult(res.x, res.converged, jnp.asarray(total), res.residual)
+        x0 = jnp.concatenate([x0, zero[x0.size:]]) if x0.size == structure.nq else x0
+    return solver(x0, drive, unknowns, values)
 
 
-@lru_cache(maxsize=None)
-def _outputs_fn(model: Model):
-    backbone = model.pointset(np.linspace(0.0, model.robot.rod.length, 101))
-
-    def out(q):
-        grid, bb = grid_frames(model, q, backbone)
-        markers = positions(Frames(grid.g[model.marker_nodes], grid.J[model.marker_nodes]),
-                            jnp.asarray(model.marker_offsets))
-        return (markers, positions(bb),
-                tendons.length_changes(model, grid))
+@lru_cache(maxsize=CACHE_SIZE)
+def _outputs_fn(structure: Structure):
+    def out(values, q):
+        backbone = points_at(structure, values,
+                             jnp.linspace(0.0, values.length, BACKBONE_POINTS))
+        markers = points_at(structure, values, values.marker_X)
+        grid, bb, mk = grid_frames(structure, values, q, backbone, markers)
+        return (positions(mk, values.marker_offsets), positions(bb),
+                tendons.length_changes(structure, values, grid))
 
     return jax.jit(out)
 
 
-def shape_outputs(model: Model, q):
+def shape_outputs(structure: Structure, values: Values, q):
     """Marker positions (n_m, 3), backbone (101, 3) and tendon length changes at q."""
-    return tuple(np.asarray(a) for a in _outputs_fn(model)(jnp.asarray(q)))
+    return tuple(np.asarray(a) for a in _outputs_fn(structure)(values, jnp.asarray(q)))
+
+
+def marker_positions(structure: Structure, values: Values, q):
+    """Marker positions (n_m, 3) at q, traceable (differentiable in q and in the values)."""
+    pts = points_at(structure, values, values.marker_X)
+    _, mk = grid_frames(structure, values, q, pts)
+    return positions(mk, values.marker_offsets)
+
+
+@lru_cache(maxsize=CACHE_SIZE)
+def _derivatives_fn(structure: Structure, measured: tuple[int, ...], wrt: tuple[str, ...]):
+    def jac(x, drive, unknowns, values):
+        sc = scaling(values, measured)
+
+        def r(x, theta):
+            v = values._replace(**{k: theta[k] for k in theta if k in VALUE_NAMES})
+            d = drive._replace(**{k: theta[k] for k in theta if k in DRIVE_NAMES})
+            return residual(structure, v, measured, x, d, unknowns, 1.0, sc)[0]
+
+        theta = {k: getattr(values, k) if k in VALUE_NAMES else getattr(drive, k) for k in wrt}
+        Rx, Rt = jax.jacfwd(r, argnums=(0, 1))(x, theta)
+        lu = jax.scipy.linalg.lu_factor(Rx)
+        return {k: -jax.scipy.linalg.lu_solve(lu, v.reshape(x.size, -1)).reshape(v.shape)
+                for k, v in Rt.items()}
+
+    return jax.jit(jac)
+
+
+def derivatives(structure: Structure, values: Values, measured: tuple[int, ...], x,
+                drive: Drive, unknowns: Unknowns, wrt) -> dict[str, np.ndarray]:
+    """``dx/dθ`` at an equilibrium ``x`` by implicit differentiation, ``−R_x⁻¹ ∂R/∂θ``, for
+    every name θ in ``wrt``: values (:data:`~tendonsense.model.VALUE_NAMES`) or drive inputs
+    (:data:`DRIVE_NAMES`). Each entry has shape ``(len(x), *shape of θ)``."""
+    wrt = tuple(wrt)
+    for k in wrt:
+        if k not in VALUE_NAMES + DRIVE_NAMES:
+            raise ValueError(f"{k}: cannot differentiate with respect to it (one of "
+                             f"{', '.join(VALUE_NAMES + DRIVE_NAMES)})")
+    out = _derivatives_fn(structure, tuple(measured), wrt)(jnp.asarray(x), drive, unknowns,
+                                                           values)
+    return {k: np.asarray(v) for k, v in out.items()}

@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .kinematics import Frames
 from .lie import safe_norm
-from .model import Model, TendonGroup
+from .model import Structure, TendonGroup, Values
 
 
 def path(group: TendonGroup, grid: Frames):
@@ -20,25 +21,26 @@ def path(group: TendonGroup, grid: Frames):
     return Frames(g, J), r
 
 
-def length_changes(model: Model, grid: Frames):
+def length_changes(structure: Structure, values: Values, grid: Frames):
     """``y = Σ ‖r_{i+1} − r_i‖ − l*`` for every tendon (eq. 9), shape (n_t,)."""
-    y = jnp.zeros(model.n_tendons)
-    for grp in model.tendon_groups:
+    y = jnp.zeros(structure.n_tendons)
+    for index, grp in zip(structure.groups, values.tendons):
         _, r = path(grp, grid)
         lengths = jnp.sum(jnp.linalg.norm(jnp.diff(r, axis=1), axis=2), axis=1)
-        y = y.at[grp.index].set(lengths - grp.rest_length)
+        y = y.at[np.array(index)].set(lengths - grp.rest_length)
     return y
 
 
-def actuation(model: Model, grid: Frames, friction):
+def actuation(structure: Structure, values: Values, grid: Frames, friction):
     """``B(q)`` of eq. 14, shape (nq, n_t): the generalized force of a unit tension.
 
     At disk i the tendon pulls with ``f_i = T_i v_L + T_{i+1} v_R`` (eq. 12) where the tension
     drops by ``exp(−μ φ_i)`` across every disk (eq. 10), ``φ_i`` the angle the tendon turns there;
     at the first disk it arrives from the actuator along the local −x axis.
     """
-    B = jnp.zeros((model.nq, model.n_tendons))
-    for grp in model.tendon_groups:
+    B = jnp.zeros((structure.nq, structure.n_tendons))
+    for index, grp in zip(structure.groups, values.tendons):
+        index = np.array(index)
         at, r = path(grp, grid)
         k = r.shape[0]
         seg = jnp.diff(r, axis=1)
@@ -46,13 +48,13 @@ def actuation(model: Model, grid: Frames, friction):
         v_R = jnp.concatenate([u, jnp.zeros((k, 1, 3))], axis=1)
         v_L = jnp.concatenate([-at.g[:, :1, :3, 0], -u], axis=1)
         phi = _angle(-v_L[:, :-1], v_R[:, :-1])  # eq. 10: the turn at every disk but the anchor
-        mu = friction[grp.index][:, None]
+        mu = friction[index][:, None]
         ratio = jnp.exp(-mu * jnp.concatenate([jnp.zeros((k, 1)), jnp.cumsum(phi, axis=1)], axis=1))
         after = jnp.concatenate([ratio[:, 1:], jnp.zeros((k, 1))], axis=1)
         f = ratio[..., None] * v_L + after[..., None] * v_R  # eq. 12
         f_loc = jnp.einsum("knji,knj->kni", at.g[..., :3, :3], f)  # R_iᵀ f_i
         W = jnp.concatenate([jnp.cross(grp.offsets, f_loc), f_loc], axis=2)  # eq. 13
-        B = B.at[:, grp.index].set(jnp.einsum("knai,kna->ik", at.J, W))  # eq. 14
+        B = B.at[:, index].set(jnp.einsum("knai,kna->ik", at.J, W))  # eq. 14
     return B
 
 

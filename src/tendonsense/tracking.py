@@ -20,11 +20,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .kinematics import Frames, grid_poses, positions
-from .model import Model
 from .estimation import Noise, Problem, estimate_problem
 from .forward import tendon_vector
-from .statics import Drive, Params, residual
+from .kinematics import Frames, grid_poses, positions
+from .model import Structure, points_at
+from .statics import CACHE_SIZE, Drive, residual, scaling
 
 
 class Track(NamedTuple):
@@ -38,23 +38,25 @@ class Track(NamedTuple):
     markers: jax.Array  # (N, n_markers, 3)
 
 
-@lru_cache(maxsize=None)
-def tracker(model: Model, measured: tuple[int, ...], n_z: int, tension_columns: tuple[int, ...],
-            refine_every: int = 1):
-    """Compiled ``track(x0, drives, unknowns, params) -> Track`` for a square system
+@lru_cache(maxsize=CACHE_SIZE)
+def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
+            tension_columns: tuple[int, ...], refine_every: int = 1):
+    """Compiled ``track(x0, drives, unknowns, values) -> Track`` for a square system
     (``len(measured) == n_z``); ``drives`` is a :class:`Drive` with a leading sample axis.
     The sensitivity columns are the measured lengths, then the tensions of the tendons
     ``tension_columns``."""
-    num = model.robot.numerics
-    r0 = model.robot.rod.radius_knots[0][1]
-    floor_unit = 1e-6 * np.sqrt(r0**4 / model.robot.rod.length)
+    num = structure.numerics
     max_evals = 4 * num.max_iterations
+    nq = structure.nq
 
-    def track(x0, drives, unknowns, params):
-        floor = floor_unit * jnp.sqrt(params.young_modulus)
+    def track(x0, drives, unknowns, values):
+        floor = values.energy_floor * jnp.sqrt(values.young_modulus)
+        sc = scaling(values, measured)
+        markers_at = points_at(structure, values, values.marker_X)
 
         def f(x, d):  # (r, load size, ∂r/∂T)
-            return residual(model, measured, x, d, unknowns, params, 1.0, with_actuation=True)
+            return residual(structure, values, measured, x, d, unknowns, 1.0, sc,
+                            with_actuation=True)
 
         def jac(x, d):
             return jax.jacfwd(lambda x: f(x, d)[0])(x)
@@ -115,9 +117,8 @@ def tracker(model: Model, measured: tuple[int, ...], n_z: int, tension_columns: 
             x = st["x"]
             # sensitivity to the measurements [y_meas; T]: R_x dx = −R_m dm
             # ∂r/∂y_meas is −√k on the length rows, ∂r/∂T = −L⁻¹B on the equilibrium rows
-            k = jnp.sqrt(params.young_modulus * model.length_stiffness_unit[sel])
-            Ry = jnp.zeros((x.size, sel.size)).at[model.nq + jnp.arange(sel.size),
-                                                   jnp.arange(sel.size)].set(-k)
+            Ry = jnp.zeros((x.size, sel.size)).at[nq + jnp.arange(sel.size),
+                                                   jnp.arange(sel.size)].set(-sc.root_k)
             Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)
             Rx = jax.vmap(lambda u: jax.jvp(lambda x: f(x, d)[0], (x,), (u,))[1],
                           in_axes=1, out_axes=1)
@@ -135,8 +136,8 @@ def tracker(model: Model, measured: tuple[int, ...], n_z: int, tension_columns: 
 
             H = jax.lax.cond(count % refine_every == 0, refine, lambda H: H, st["H"])
             v = -H @ Rm
-            g = grid_poses(model, x[:model.nq])[model.marker_nodes]
-            markers = positions(Frames(g, None), jnp.asarray(model.marker_offsets))
+            _, g = grid_poses(values, x[:nq], markers_at)
+            markers = positions(Frames(g, None), values.marker_offsets)
             carry = (jnp.where(ok, x, x_prev), H, v, measurements(d), ok, count + 1)
             return carry, Track(x, ok, st["evals"], st["jacs"], v, markers)
 
@@ -155,6 +156,7 @@ def stacked_drives(prob: Problem, tensions: np.ndarray, targets: np.ndarray) -> 
     n = tensions.shape[0]
     return Drive(jnp.asarray(tensions, float),
                  jnp.asarray(np.broadcast_to(prob.known_forces, (n, *prob.known_forces.shape))),
+                 jnp.asarray(np.broadcast_to(prob.load_X, (n, *prob.load_X.shape))),
                  jnp.asarray(np.broadcast_to(prob.gravity, (n, 3))), jnp.asarray(targets, float))
 
 
@@ -186,8 +188,7 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
     if len(prob.measured) != prob.n_z:
         return _one_by_one(prob, displacements, tensions, noise, progress)
     tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.any(T != 0, axis=0)))))
-    track = tracker(model, prob.measured, prob.n_z, tcols, 4)
-    params = Params.of(model)
+    track = tracker(model.structure, prob.measured, prob.n_z, tcols, 4)
     meas = list(prob.measured)
     out: list[SampleEstimate] = []
     x0 = None
@@ -198,7 +199,7 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
         # a fixed scan length (padded with the last sample) keeps one compiled tracker
         rows = list(idx) + [idx[-1]] * (chunk - len(idx))
         drives = stacked_drives(prob, T[rows], Y[rows][:, meas])
-        tr = jax.device_get(track(jnp.asarray(x0), drives, prob.unknowns, params))
+        tr = jax.device_get(track(jnp.asarray(x0), drives, prob.unknowns, model.values))
         for j, k in enumerate(idx):
             if tr.converged[j]:
                 dz = tr.dx_dm[j, model.nq:, :]

@@ -1,0 +1,126 @@
+"""Values at run time (issue 8): one compiled program per robot structure, point loads at any
+X, batched solves and exact derivatives with respect to the values."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from tendonsense import statics
+from tendonsense.estimation import PointForceUnknown, estimate, problem
+from tendonsense.forward import model_for, solution_derivatives, solve, solve_batch
+from tendonsense.robot import Marker
+
+
+def variant(robot, rng):
+    """The robot with other numbers everywhere it has numbers, the same structure."""
+    rod = dataclasses.replace(
+        robot.rod, young_modulus=robot.rod.young_modulus * rng.uniform(0.5, 2.0),
+        poisson_ratio=rng.uniform(0.3, 0.5), density=robot.rod.density * rng.uniform(0.7, 1.3),
+        radius_knots=tuple((x, r * rng.uniform(0.9, 1.1)) for x, r in robot.rod.radius_knots))
+    tendons = tuple(dataclasses.replace(
+        t, friction=rng.uniform(0.0, 0.6),
+        offset_base=tuple(v * rng.uniform(0.9, 1.0) for v in t.offset_base)) for t in robot.tendons)
+    markers = tuple(Marker(m.name, m.X * rng.uniform(0.8, 1.0), tuple(rng.uniform(-1e-3, 1e-3, 3)))
+                    for m in robot.markers)
+    a = rng.uniform(-0.3, 0.3)
+    c, s = np.cos(a), np.sin(a)
+    return robot.replace(rod=rod, tendons=tendons, markers=markers,
+                         gravity=tuple(rng.normal(size=3) * 3),
+                         base_position=tuple(rng.normal(size=3) * 0.1),
+                         base_rotation=((c, -s, 0.0), (s, c, 0.0), (0.0, 0.0, 1.0)))
+
+
+def test_no_new_programs_for_new_values_or_load_positions(prototype, monkeypatch):
+    """Tracing runs the Python of ``terms``; it must not run again for 20 robots with other
+    numbers and 20 other load positions (forward statics, forward kinematics, estimation)."""
+    calls = []
+    original = statics.terms
+    monkeypatch.setattr(statics, "terms", lambda *a, **k: calls.append(1) or original(*a, **k))
+    rng = np.random.default_rng(0)
+
+    def run(robot, X):
+        r = solve(robot, {"t1": 1.5}, [(X, (0.0, 0.05, -0.1))])
+        e = estimate(robot, {"t1": r.displacements["t1"]}, {"t1": 1.5},
+                     [PointForceUnknown(X, (0, 0.05, -0.1))])
+        assert r.converged and e.converged
+        assert e.magnitudes[0] == pytest.approx(np.hypot(0.05, 0.1), rel=1e-6)
+
+    run(prototype, 0.2)  # compile (or fetch from the cache) once
+    before = len(calls)
+    for _ in range(20):
+        run(variant(prototype, rng), 0.2)
+    for X in rng.uniform(0.01, 0.25, 20):
+        run(prototype, float(X))
+    assert len(calls) == before
+    assert model_for(variant(prototype, rng)).structure == model_for(prototype).structure
+
+
+def test_variant_matches_a_freshly_built_model(prototype):
+    """with_values gives the same solution as a robot file with those numbers."""
+    robot = prototype.with_parameters(young_modulus=1.7e6, density=900.0, friction=0.2)
+    direct = solve(robot, {"t1": 2.0, "t3": 0.5})
+    model = model_for(prototype).with_values(young_modulus=1.7e6, density=900.0, friction=0.2)
+    drive = statics.Drive(*(np.asarray(a) for a in (
+        [2.0, 0.0, 0.5], np.zeros((0, 3)), np.zeros(0), prototype.gravity, np.zeros(0))))
+    res = statics.solve_system(model.structure, model.values, (), drive,
+                               statics.Unknowns.none(3), None)
+    np.testing.assert_allclose(np.asarray(res.x), direct.q, rtol=0, atol=1e-10)
+
+
+def test_batch_matches_single_solves(prototype):
+    rng = np.random.default_rng(1)
+    n = 12
+    E = prototype.rod.young_modulus * rng.uniform(0.7, 1.5, n)
+    mu = rng.uniform(0.1, 0.6, n)
+    T = np.zeros((n, 3))
+    T[:, 0] = rng.uniform(0.5, 3.0, n)
+    X = rng.uniform(0.05, 0.25, n)
+    F = np.stack([np.zeros(n), np.zeros(n), -rng.uniform(0.0, 0.2, n)], axis=1)
+    out = solve_batch(prototype, T, [(X, F)], values={"young_modulus": E, "friction": mu},
+                      chunk=8)
+    assert out.converged.all() and out.markers["tip"].shape == (n, 3)
+    for k in (0, 5, 11):
+        one = solve(prototype.with_parameters(young_modulus=E[k], friction=mu[k]),
+                    dict(zip(prototype.tendon_names, T[k])), [(X[k], F[k])])
+        np.testing.assert_allclose(out.markers["tip"][k], one.markers["tip"], atol=1e-10)
+        assert out.displacements["t1"][k] == pytest.approx(one.displacements["t1"], abs=1e-12)
+
+
+def test_batch_refuses_bad_values(prototype):
+    with pytest.raises(ValueError, match="stiffness"):
+        solve_batch(prototype, np.ones((2, 3)), values={"stiffness": [1.0, 2.0]})
+    with pytest.raises(ValueError, match="outside the rod"):
+        solve_batch(prototype, np.ones((2, 3)), [(np.array([0.1, 0.4]), (0, 0, -1))])
+
+
+@pytest.mark.parametrize("name, step", [("young_modulus", 1e-4), ("density", 1e-4),
+                                        ("load_X", 1e-4), ("friction", 1e-4)])
+def test_implicit_derivatives_match_finite_differences(prototype, name, step):
+    """The exact derivatives against central differences of whole solves (test only)."""
+    T = {"t1": 2.0, "t3": 0.8}
+    X0, f = 0.17, (0.0, 0.05, -0.15)
+    d = solution_derivatives(prototype, T, [(X0, f)], wrt=(name,))
+
+    def tip(h):
+        robot, X = prototype, X0
+        if name == "load_X":
+            X = X0 + h
+        elif name == "friction":  # tendon t1 only
+            t = prototype.tendons
+            robot = prototype.replace(tendons=(dataclasses.replace(
+                t[0], friction=t[0].friction + h), *t[1:]))
+        else:
+            v = getattr(prototype.rod, name)
+            robot = prototype.with_parameters(**{name: v + h * v})
+        r = solve(robot, T, [(X, f)])
+        return np.concatenate([r.markers["tip"], list(r.displacements.values())])
+
+    scale = 1.0 if name in ("load_X", "friction") else getattr(prototype.rod, name)
+    fd = (tip(step) - tip(-step)) / (2 * step * scale)
+    exact = np.concatenate([d.markers[name][2], d.displacements[name]])
+    if name == "friction":
+        exact = exact[:, 0]
+    exact = exact.reshape(-1)
+    assert np.abs(exact).max() > 1e-8
+    np.testing.assert_allclose(exact, fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
