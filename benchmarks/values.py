@@ -86,7 +86,7 @@ def main(argv=None):
           f"(growth {mem2[0] - mem0[0]:.0f} MB), maps {mem0[1]} -> {mem2[1]}")
 
     try:
-        from tendonsense.forward import solve_batch
+        from tendonsense.tracking import solve_batch
     except ImportError:
         print("batched solves: not available")
         return

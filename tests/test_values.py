@@ -8,7 +8,8 @@ import pytest
 
 from tendonsense import statics
 from tendonsense.estimation import PointForceUnknown, estimate, problem
-from tendonsense.forward import model_for, solution_derivatives, solve, solve_batch
+from tendonsense.forward import model_for, solution_derivatives, solve
+from tendonsense.tracking import solve_batch
 from tendonsense.robot import Marker
 
 

@@ -1,11 +1,10 @@
 """Forward problems: statics (tensions → shape) and kinematics (tendon lengths → shape and
-tensions, eq. 16), one at a time or batched over values, tensions and loads, and the
-derivatives of a solution with respect to the values."""
+tensions, eq. 16), and the derivatives of a solution with respect to the values (batches:
+:func:`tendonsense.tracking.solve_batch`)."""
 
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Mapping, Sequence
@@ -16,11 +15,11 @@ import numpy as np
 
 from . import tendons
 from .kinematics import grid_frames
-from .model import VALUE_NAMES, Model
+from .model import Model
 from .result import Result
 from .robot import Robot
 from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, derivatives, marker_positions,
-                      newton_solver, shape_outputs, solve_system)
+                      shape_outputs, solve_system)
 
 #: a point force: (X, (fx, fy, fz)) in the global frame, N
 PointForce = tuple[float, Sequence[float]]
@@ -176,106 +175,3 @@ def solution_derivatives(robot: Robot, tensions: Mapping[str, float] | None = No
         markers[k] = (Pq.reshape(-1, model.nq) @ flat).reshape(Pq.shape[:2] + d.shape[1:])
         disp[k] = (Yq @ flat).reshape((Yq.shape[0],) + d.shape[1:])
     return Derivatives(dq, markers, disp)
-
-
-# ----------------------------------------------------------------------------- batches
-
-@dataclass(frozen=True, eq=False)
-class BatchResult:
-    """Forward-statics solutions of a batch (leading axis: sample); lengths in m."""
-
-    q: np.ndarray  # (N, nq)
-    markers: dict[str, np.ndarray]  # name -> (N, 3), global
-    displacements: dict[str, np.ndarray]  # tendon -> (N,), eq. 9
-    converged: np.ndarray  # (N,) bool
-    iterations: np.ndarray  # (N,)
-
-
-@lru_cache(maxsize=CACHE_SIZE)
-def _batch_fn(structure):
-    solver = newton_solver(structure, (), 0)
-
-    def one(drive, values):
-        x0 = jnp.zeros(structure.nq)
-        unknowns = Unknowns.none(structure.n_tendons, drive.load_X.shape[0])
-        res = solver(x0, drive, unknowns, values)
-        y = tendons.length_changes(structure, values, grid_frames(structure, values, res.x))
-        return res.x, marker_positions(structure, values, res.x), y, res.converged, \
-            res.iterations
-
-    def batch(drives, values):
-        axes = jax.tree_util.tree_map(lambda a: None, values)._replace(
-            **{k: 0 for k in VALUE_NAMES})
-        return jax.vmap(one, in_axes=(0, axes))(drives, values)
-
-    return jax.jit(batch)
-
-
-def solve_batch(robot: Robot, tensions, point_forces: Sequence[PointForce] = (),
-                values: Mapping[str, object] | None = None, chunk: int = 128,
-                workers: int = 2) -> BatchResult:
-    """Forward statics over a batch in one vectorised call, for sweeps and Monte Carlo.
-
-    ``tensions``: (N, n_t) array (tendons in file order) or {tendon: (N,) array}.
-    ``point_forces``: [(X, f), ...] where X may be (N,) and f (N, 3). ``values``: {name: (N,)}
-    for ``young_modulus``, ``poisson_ratio``, ``density``, ``friction`` ((N,) one μ for all
-    tendons, or (N, n_t)). Every sample starts from the straight rod. One compiled program per
-    robot structure serves every batch (padded to ``chunk`` samples), run on ``workers``
-    threads.
-
-    >>> E = np.linspace(0.8e6, 1.2e6, 1000)
-    >>> out = solve_batch(robot, {"t1": np.full(1000, 2.0)}, values={"young_modulus": E})
-    >>> out.markers["tip"].shape, out.converged.all()
-    ((1000, 3), True)
-    """
-    model = model_for(robot)
-    names = robot.tendon_names
-    if isinstance(tensions, Mapping):
-        cols = {k: np.atleast_1d(np.asarray(v, float)) for k, v in tensions.items()}
-        for k in cols:
-            if k not in names:
-                raise ValueError(f"tension {k}: no such tendon (robot has {', '.join(names)})")
-        n = max((c.size for c in cols.values()), default=1)
-        T = np.stack([np.broadcast_to(cols.get(k, np.zeros(1)), (n,)) for k in names], axis=1)
-    else:
-        T = np.asarray(tensions, float).reshape(-1, len(names))
-    n = T.shape[0]
-    X = np.stack([np.broadcast_to(np.asarray(x, float), (n,)) for x, _ in point_forces], axis=1) \
-        if point_forces else np.zeros((n, 0))
-    F = np.stack([np.broadcast_to(np.asarray(f, float), (n, 3)) for _, f in point_forces],
-                 axis=1) if point_forces else np.zeros((n, 0, 3))
-    if not (np.all(np.isfinite(T)) and np.all(np.isfinite(X)) and np.all(np.isfinite(F))):
-        raise ValueError("batch: tensions and point forces must be finite")
-    if np.any((X < 0) | (X > robot.rod.length)):
-        raise ValueError(f"batch: a point force X is outside the rod [0, {robot.rod.length:g}]")
-    v = model.values
-    given = dict(values or {})
-    for k in given:
-        if k not in VALUE_NAMES:
-            raise ValueError(f"{k}: not a value that can be varied (one of "
-                             f"{', '.join(VALUE_NAMES)})")
-    full = {}
-    for k in VALUE_NAMES:
-        a = np.asarray(given.get(k, getattr(v, k)), float)
-        if k == "friction" and k in given and a.ndim <= 1:  # one μ for every tendon
-            a = a.reshape(-1, 1)
-        full[k] = np.broadcast_to(a, (n, *np.shape(getattr(v, k))))
-        if not np.all(np.isfinite(full[k])):
-            raise ValueError(f"batch: {k} must be finite")
-    g = np.broadcast_to(np.asarray(robot.gravity, float), (n, 3))
-    fn = _batch_fn(model.structure)
-
-    def run(idx):
-        rows = np.concatenate([idx, np.full(chunk - idx.size, idx[-1])])
-        drives = Drive(jnp.asarray(T[rows]), jnp.asarray(F[rows]), jnp.asarray(X[rows]),
-                       jnp.asarray(g[rows]), jnp.zeros((chunk, 0)))
-        vals = v._replace(**{k: jnp.asarray(full[k][rows]) for k in VALUE_NAMES})
-        out = jax.device_get(fn(drives, vals))
-        return [a[: idx.size] for a in out]
-
-    pieces = [np.arange(s, min(n, s + chunk)) for s in range(0, n, chunk)]
-    with ThreadPoolExecutor(max(1, workers)) as pool:
-        parts = list(pool.map(run, pieces))
-    q, mk, y, conv, its = (np.concatenate([p[i] for p in parts]) for i in range(5))
-    return BatchResult(q, {m: mk[:, i] for i, m in enumerate(robot.marker_names)},
-                       {t: y[:, j] for j, t in enumerate(names)}, conv.astype(bool), its)

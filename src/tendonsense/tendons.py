@@ -16,7 +16,8 @@ from .model import Structure, TendonGroup, Values
 
 def path(group: TendonGroup, grid: Frames):
     """Frames at the disks, (k, nd, ...), and the global tendon points ``r_i = g_i [d_i; 1]``."""
-    g, J = grid.g[group.nodes], grid.J[group.nodes]
+    g = grid.g[group.nodes]
+    J = None if grid.J is None else grid.J[group.nodes]
     r = g[..., :3, 3] + jnp.einsum("knij,knj->kni", g[..., :3, :3], group.offsets)
     return Frames(g, J), r
 

@@ -20,11 +20,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import tendons
 from .estimation import Noise, Problem, estimate_problem
-from .forward import tendon_vector
+from .forward import model_for, tendon_vector
 from .kinematics import Frames, grid_poses, positions
-from .model import Structure, points_at
-from .statics import CACHE_SIZE, Drive, residual, scaling
+from .model import VALUE_NAMES, Structure, points_at
+from .robot import Robot
+from .statics import (CACHE_SIZE, Drive, Unknowns, residual, scaling, shape_outputs,
+                      solve_system)
 
 
 class Track(NamedTuple):
@@ -36,30 +39,37 @@ class Track(NamedTuple):
     jacobians: jax.Array  # (N,) exact Jacobians computed
     dx_dm: jax.Array  # (N, nq + n_z, n_meas + n_T) sensitivity to [y_meas; T_columns]
     markers: jax.Array  # (N, n_markers, 3)
+    lengths: jax.Array  # (N, n_t) tendon length changes, eq. 9
 
 
 @lru_cache(maxsize=CACHE_SIZE)
 def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
             tension_columns: tuple[int, ...], refine_every: int = 1):
-    """Compiled ``track(x0, drives, unknowns, values) -> Track`` for a square system
-    (``len(measured) == n_z``); ``drives`` is a :class:`Drive` with a leading sample axis.
-    The sensitivity columns are the measured lengths, then the tensions of the tendons
+    """Compiled ``track(x0, drives, unknowns, values, varied) -> Track`` for a square system
+    (``len(measured) == n_z``); ``drives`` is a :class:`Drive` and ``varied`` a dict of values
+    by name (:data:`~tendonsense.model.VALUE_NAMES`, may be empty), both with a leading sample
+    axis. The sensitivity columns are the measured lengths, then the tensions of the tendons
     ``tension_columns``."""
     num = structure.numerics
     max_evals = 4 * num.max_iterations
     nq = structure.nq
 
-    def track(x0, drives, unknowns, values):
-        floor = values.energy_floor * jnp.sqrt(values.young_modulus)
-        sc = scaling(values, measured)
+    def track(x0, drives, unknowns, values, varied):
         markers_at = points_at(structure, values, values.marker_X)
+        fixed = (values, scaling(values, measured))
 
-        def f(x, d):  # (r, load size, ∂r/∂T)
-            return residual(structure, values, measured, x, d, unknowns, 1.0, sc,
+        def at(p):  # the values of one sample and their residual scaling
+            if not p:
+                return fixed
+            v = values._replace(**p)
+            return v, scaling(v, measured)
+
+        def f(x, d, vs):  # (r, load size, ∂r/∂T)
+            return residual(structure, vs[0], measured, x, d, unknowns, 1.0, vs[1],
                             with_actuation=True)
 
-        def jac(x, d):
-            return jax.jacfwd(lambda x: f(x, d)[0])(x)
+        def jac(x, d, vs):
+            return jax.jacfwd(lambda x: f(x, d, vs)[0])(x)
 
         def merit(r):
             m = 0.5 * jnp.dot(r, r)
@@ -71,11 +81,15 @@ def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
         def measurements(d):
             return jnp.concatenate([d.targets, d.tensions[tcols]])
 
-        def sample(carry, d):
+        def sample(carry, inputs):
+            d, p = inputs
             x_prev, H_prev, dxdm_prev, m_prev, ok_prev, count = carry
+            vs = at(p)
+            sc = vs[1]
+            floor = vs[0].energy_floor * jnp.sqrt(vs[0].young_modulus)
             # first-order tangent predictor from the previous sample's sensitivity
             guess = x_prev + jnp.where(ok_prev, dxdm_prev @ (measurements(d) - m_prev), 0.0)
-            r, s, rT = f(guess, d)
+            r, s, rT = f(guess, d, vs)
             st = dict(x=guess, r=r, s=s, rT=rT, H=H_prev, fresh=jnp.asarray(False),
                       alpha=jnp.asarray(1.0), evals=jnp.asarray(1), jacs=jnp.asarray(0),
                       status=jnp.where(jnp.linalg.norm(r) <= num.tolerance * (s + floor), 1, 0))
@@ -86,7 +100,7 @@ def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
             def body(st):
                 dx = -st["H"] @ st["r"]
                 xt = st["x"] + st["alpha"] * dx
-                rt, ts, rTt = f(xt, d)
+                rt, ts, rTt = f(xt, d, vs)
                 m0, mt = merit(st["r"]), merit(rt)
                 contracts = mt <= 0.25 * m0
                 armijo = mt <= (1 - 2e-4 * st["alpha"]) * m0
@@ -100,7 +114,7 @@ def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
                 safe = accept & (jnp.abs(denom) > 1e-300)
                 broyden = st["H"] + jnp.outer(step - Hy, step @ st["H"]) / jnp.where(
                     safe, denom, 1.0)
-                H = jax.lax.cond(refresh, lambda: jnp.linalg.inv(jac(st["x"], d)),
+                H = jax.lax.cond(refresh, lambda: jnp.linalg.inv(jac(st["x"], d, vs)),
                                  lambda: jnp.where(safe, broyden, st["H"]))
                 give_up = ~accept & st["fresh"] & (st["alpha"] < 2.0**-30)
                 new = dict(
@@ -120,7 +134,7 @@ def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
             Ry = jnp.zeros((x.size, sel.size)).at[nq + jnp.arange(sel.size),
                                                    jnp.arange(sel.size)].set(-sc.root_k)
             Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)
-            Rx = jax.vmap(lambda u: jax.jvp(lambda x: f(x, d)[0], (x,), (u,))[1],
+            Rx = jax.vmap(lambda u: jax.jvp(lambda x: f(x, d, vs)[0], (x,), (u,))[1],
                           in_axes=1, out_axes=1)
             def refine(H):
                 # the exact products W = R_x v give a block (multi-secant) Broyden update of the
@@ -136,16 +150,17 @@ def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
 
             H = jax.lax.cond(count % refine_every == 0, refine, lambda H: H, st["H"])
             v = -H @ Rm
-            _, g = grid_poses(values, x[:nq], markers_at)
+            grid, g = grid_poses(values, x[:nq], markers_at)
             markers = positions(Frames(g, None), values.marker_offsets)
+            y = tendons.length_changes(structure, values, Frames(grid, None))
             carry = (jnp.where(ok, x, x_prev), H, v, measurements(d), ok, count + 1)
-            return carry, Track(x, ok, st["evals"], st["jacs"], v, markers)
+            return carry, Track(x, ok, st["evals"], st["jacs"], v, markers, y)
 
-        d0 = jax.tree_util.tree_map(lambda a: a[0], drives)
+        d0, p0 = jax.tree_util.tree_map(lambda a: a[0], (drives, varied))
         m0 = measurements(d0)
-        carry = (x0, jnp.linalg.inv(jac(x0, d0)), jnp.zeros((x0.size, m0.size)), m0,
+        carry = (x0, jnp.linalg.inv(jac(x0, d0, at(p0))), jnp.zeros((x0.size, m0.size)), m0,
                  jnp.asarray(False), jnp.asarray(0))
-        _, out = jax.lax.scan(sample, carry, drives)
+        _, out = jax.lax.scan(sample, carry, (drives, varied))
         return out
 
     return jax.jit(track)
@@ -199,7 +214,7 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
         # a fixed scan length (padded with the last sample) keeps one compiled tracker
         rows = list(idx) + [idx[-1]] * (chunk - len(idx))
         drives = stacked_drives(prob, T[rows], Y[rows][:, meas])
-        tr = jax.device_get(track(jnp.asarray(x0), drives, prob.unknowns, model.values))
+        tr = jax.device_get(track(jnp.asarray(x0), drives, prob.unknowns, model.values, {}))
         for j, k in enumerate(idx):
             if tr.converged[j]:
                 dz = tr.dx_dm[j, model.nq:, :]
@@ -238,6 +253,15 @@ def _one_by_one(prob, displacements, tensions, noise, progress):
     return out
 
 
+def _principal_order(m: np.ndarray) -> np.ndarray:
+    """Rows of ``m`` ordered along their first principal direction (standardised columns), so
+    that neighbours warm-start each other."""
+    if m.shape[0] < 2:
+        return np.arange(m.shape[0])
+    z = (m - m.mean(0)) / np.maximum(m.std(0), 1e-300)
+    return np.argsort(z @ np.linalg.svd(z, full_matrices=False)[2][0])
+
+
 def estimate_batch(prob: Problem, displacements: Sequence[Mapping[str, float]],
                    tensions: Sequence[Mapping[str, float]], noise: Noise = Noise(),
                    workers: int = 2, progress=None) -> list[SampleEstimate]:
@@ -253,10 +277,7 @@ def estimate_batch(prob: Problem, displacements: Sequence[Mapping[str, float]],
     m = np.array([np.concatenate([tendon_vector(robot, y, "displacement"),
                                   tendon_vector(robot, t, "tension")])
                   for y, t in zip(displacements, tensions)]).reshape(n, -1)
-    z = (m - m.mean(0)) / np.maximum(m.std(0), 1e-300)
-    order = np.argsort(z @ np.linalg.svd(z, full_matrices=False)[2][0]) if n > 1 \
-        else np.arange(n)
-    runs = [r for r in np.array_split(order, max(1, workers)) if r.size]
+    runs = [r for r in np.array_split(_principal_order(m), max(1, workers)) if r.size]
     done = [0] * len(runs)
 
     def solve_run(i):
@@ -274,3 +295,119 @@ def estimate_batch(prob: Problem, displacements: Sequence[Mapping[str, float]],
         for k, r in zip(run, res):
             out[k] = r
     return out
+
+
+# ----------------------------------------------------------------------------- forward batches
+
+@dataclass(frozen=True, eq=False)
+class BatchResult:
+    """Forward-statics solutions of a batch (leading axis: sample, input order); m, global."""
+
+    q: np.ndarray  # (N, nq)
+    markers: dict[str, np.ndarray]  # name -> (N, 3)
+    displacements: dict[str, np.ndarray]  # tendon -> (N,), eq. 9
+    converged: np.ndarray  # (N,) bool
+    iterations: np.ndarray  # (N,) residual evaluations
+
+
+def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
+                values: Mapping[str, object] | None = None, chunk: int = 100,
+                workers: int = 2) -> BatchResult:
+    """Forward statics over a batch of tensions, point loads and values, for sweeps and Monte
+    Carlo: one compiled program per robot structure, whatever the numbers.
+
+    ``tensions``: (N, n_t) array (tendons in file order) or {tendon: (N,) array}.
+    ``point_forces``: [(X, f), ...] where X may be (N,) and f (N, 3). ``values``: {name: (N,)}
+    for ``young_modulus``, ``poisson_ratio``, ``density``, ``friction`` ((N,) one μ for every
+    tendon, or (N, n_t)). The samples are ordered along their first principal direction and
+    solved by the compiled tracker, each warm-started from its neighbour, on ``workers``
+    threads; a sample it cannot converge is solved again on its own from the straight rod
+    with load continuation.
+
+    >>> E = np.linspace(0.8e6, 1.2e6, 1000)
+    >>> out = solve_batch(robot, {"t1": np.full(1000, 2.0)}, values={"young_modulus": E})
+    >>> out.markers["tip"].shape, bool(out.converged.all())
+    ((1000, 3), True)
+    """
+    from concurrent.futures import ThreadPoolExecutor
+    model = model_for(robot)
+    structure, base = model.structure, model.values
+    T, X, F, varied = _batch_inputs(robot, base, tensions, point_forces, values)
+    n, n_t = T.shape
+    g = np.broadcast_to(np.asarray(robot.gravity, float), (n, 3))
+    unknowns = Unknowns.none(n_t, X.shape[1])
+    tcols = tuple(int(j) for j in np.flatnonzero(np.any(T != 0, axis=0)))
+    track = tracker(structure, (), 0, tcols, 4)
+    features = np.concatenate([T, X, F.reshape(n, -1), *(v.reshape(n, -1)
+                                                          for v in varied.values())], axis=1)
+    runs = [r for r in np.array_split(_principal_order(features), max(1, workers)) if r.size]
+    q, mk = np.zeros((n, structure.nq)), np.zeros((n, len(robot.markers), 3))
+    y, conv, its = np.zeros((n, n_t)), np.zeros(n, bool), np.zeros(n, int)
+
+    def drive(rows):
+        return Drive(jnp.asarray(T[rows]), jnp.asarray(F[rows]), jnp.asarray(X[rows]),
+                     jnp.asarray(g[rows]), jnp.zeros((len(rows), 0)))
+
+    def solve_run(run):
+        x0 = np.zeros(structure.nq)
+        for start in range(0, run.size, chunk):
+            idx = run[start:start + chunk]
+            rows = np.concatenate([idx, np.full(chunk - idx.size, idx[-1])])
+            tr = jax.device_get(track(jnp.asarray(x0), drive(rows), unknowns, base,
+                                      {k: jnp.asarray(v[rows]) for k, v in varied.items()}))
+            for j, k in enumerate(idx):
+                if tr.converged[j]:
+                    q[k], mk[k], y[k], conv[k], its[k] = (tr.x[j], tr.markers[j], tr.lengths[j],
+                                                          True, tr.iterations[j])
+                    continue
+                v = base._replace(**{name: jnp.asarray(a[k]) for name, a in varied.items()})
+                res = solve_system(structure, v, (), jax.tree_util.tree_map(
+                    lambda a: a[0], drive([k])), unknowns)
+                markers, _, lengths = shape_outputs(structure, v, res.x)
+                q[k], mk[k], y[k] = np.asarray(res.x), markers, lengths
+                conv[k], its[k] = bool(res.converged), int(res.evaluations)
+            good = np.flatnonzero(conv[idx])
+            if good.size:
+                x0 = q[idx[good[-1]]]
+
+    with ThreadPoolExecutor(len(runs)) as pool:
+        list(pool.map(solve_run, runs))
+    return BatchResult(q, {m: mk[:, i] for i, m in enumerate(robot.marker_names)},
+                       {t: y[:, j] for j, t in enumerate(robot.tendon_names)}, conv, its)
+
+
+def _batch_inputs(robot: Robot, base, tensions, point_forces, values):
+    """Validated batch arrays: T (N, n_t), X (N, n_p), F (N, n_p, 3) and the varied values."""
+    names = robot.tendon_names
+    if isinstance(tensions, Mapping):
+        cols = {k: np.atleast_1d(np.asarray(v, float)) for k, v in tensions.items()}
+        for k in cols:
+            if k not in names:
+                raise ValueError(f"tension {k}: no such tendon (robot has {', '.join(names)})")
+        n = max((c.size for c in cols.values()), default=1)
+        T = np.stack([np.broadcast_to(cols.get(k, np.zeros(1)), (n,)) for k in names], axis=1)
+    else:
+        T = np.asarray(tensions, float).reshape(-1, len(names))
+    n = T.shape[0]
+    X = np.stack([np.broadcast_to(np.asarray(x, float), (n,)) for x, _ in point_forces], axis=1) \
+        if point_forces else np.zeros((n, 0))
+    F = np.stack([np.broadcast_to(np.asarray(f, float), (n, 3)) for _, f in point_forces],
+                 axis=1) if point_forces else np.zeros((n, 0, 3))
+    if not (np.all(np.isfinite(T)) and np.all(np.isfinite(X)) and np.all(np.isfinite(F))):
+        raise ValueError("batch: tensions and point forces must be finite")
+    if np.any(T < 0):
+        raise ValueError("batch: a tension is negative (a tendon cannot push)")
+    if np.any((X < 0) | (X > robot.rod.length)):
+        raise ValueError(f"batch: a point force X is outside the rod [0, {robot.rod.length:g}]")
+    varied = {}
+    for k, val in (values or {}).items():
+        if k not in VALUE_NAMES:
+            raise ValueError(f"{k}: not a value that can be varied (one of "
+                             f"{', '.join(VALUE_NAMES)})")
+        a = np.asarray(val, float)
+        if k == "friction" and a.ndim <= 1:  # one μ for every tendon
+            a = a.reshape(-1, 1)
+        varied[k] = np.broadcast_to(a, (n, *np.shape(getattr(base, k))))
+        if not np.all(np.isfinite(varied[k])):
+            raise ValueError(f"batch: {k} must be finite")
+    return T, X, F, varied
