@@ -82,8 +82,12 @@ def make_result(model: Model, x, tensions, res: NewtonResult, **extra) -> Result
 
 
 def _statics_drive(robot: Robot, tensions, point_forces) -> Drive:
+    """The drive of a forward problem; without point forces, one of zero size at the base so
+    that problems with and without a point force share one compiled program."""
     T = tendon_vector(robot, tensions, "tension")
     X, F = check_point_forces(robot, point_forces)
+    if not X.size:
+        X, F = np.zeros(1), np.zeros((1, 3))
     return Drive(jnp.asarray(T), jnp.asarray(F), jnp.asarray(X), jnp.asarray(robot.gravity),
                  jnp.zeros(0))
 
