@@ -75,10 +75,24 @@ class Problem:
     def n_z(self) -> int:
         return self.unknowns.gravity.shape[0]
 
+    def reading_error(self, T: np.ndarray, y: np.ndarray) -> str | None:
+        """Why readings (tensions T, length changes y; per tendon) are physically impossible,
+        or None: a negative tension (a tendon cannot push) or a tendon pulled in by more than
+        its length."""
+        rest = np.zeros(len(self.robot.tendons))
+        for idx, grp in zip(self.model.structure.groups, self.model.values.tendons):
+            rest[list(idx)] = np.asarray(grp.rest_length)
+        for j, name in enumerate(self.robot.tendon_names):
+            if T[j] < 0:
+                return f"tension {name} = {T[j]:g} N is negative (a tendon cannot push)"
+            if y[j] < -rest[j]:
+                return (f"displacement {name} = {y[j]:g} m pulls in more than the tendon's "
+                        f"length ({rest[j]:g} m)")
+        return None
+
     def drive(self, tensions, targets) -> Drive:
-        return Drive(jnp.asarray(tensions, float), jnp.asarray(self.known_forces),
-                     jnp.asarray(self.load_X), jnp.asarray(self.gravity),
-                     jnp.asarray(targets, float))
+        return Drive(np.asarray(tensions, float), self.known_forces, self.load_X, self.gravity,
+                     np.asarray(targets, float))
 
 
 def problem(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
@@ -149,7 +163,7 @@ def reduced_jacobians(prob: Problem, x, drive, values: Values):
     return -yq @ sol[:, :prob.n_z], -yq @ sol[:, prob.n_z:]
 
 
-def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float):
+def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, budget=None):
     """min ‖y(q) − y_meas‖² over the magnitudes z, q solving equilibrium (eq. 17), by
     Levenberg–Marquardt; returns (x, converged, iterations, newton result, misfit)."""
     nq, n_z = prob.model.nq, prob.n_z
@@ -163,7 +177,7 @@ def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float):
             forces=drive.forces + jnp.tensordot(jnp.asarray(z), prob.unknowns.forces, axes=1),
             gravity=drive.gravity + jnp.asarray(z) @ prob.unknowns.gravity,
             targets=jnp.zeros(0))
-        res = solve_system(structure, values, (), d, statics_unknowns, q0)
+        res = solve_system(structure, values, (), d, statics_unknowns, q0, budget)
         return res, shape_outputs(structure, values, res.x)[2][sel] - y_meas
 
     z = np.zeros(n_z) if x0 is None else np.asarray(x0[nq:], float)
@@ -219,9 +233,11 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
 
 
 def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Noise(),
-                     x0=None, values: Values | None = None) -> Result:
+                     x0=None, values: Values | None = None, budget: int | None = None
+                     ) -> Result:
     """:func:`estimate` on a prepared :func:`problem`; ``values`` overrides the robot file's
-    values (e.g. a friction error, :meth:`Model.with_values`) without recompiling."""
+    values (e.g. a friction error, :meth:`Model.with_values`) without recompiling; ``budget``
+    bounds the evaluations of each equilibrium solve (:func:`~tendonsense.statics.solve_system`)."""
     robot, model = prob.robot, prob.model
     T = tendon_vector(robot, tensions, "tension")
     y_all = tendon_vector(robot, displacements, "displacement")
@@ -229,11 +245,13 @@ def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Nois
     values = model.values if values is None else values
     tol = robot.numerics.tolerance
     if len(prob.measured) == prob.n_z:
-        res = solve_system(model.structure, values, prob.measured, drive, prob.unknowns, x0)
+        res = solve_system(model.structure, values, prob.measured, drive, prob.unknowns, x0,
+                           budget)
         x, converged, iterations, misfit = np.asarray(res.x), bool(res.converged), \
             int(res.iterations), 0.0
     else:
-        x, converged, iterations, res, misfit = _least_squares(prob, drive, values, x0, tol)
+        x, converged, iterations, res, misfit = _least_squares(prob, drive, values, x0, tol,
+                                                               budget)
     z = x[model.nq:]
     sens, sigma = _uncertainty(prob, x, drive, values, T, noise)
     return make_result(model, x, T, NewtonResult(x, converged, iterations, res.residual, 0),

@@ -21,6 +21,9 @@ from .robot import Robot
 from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, derivatives, marker_positions,
                       shape_outputs, solve_system)
 
+#: why a solution that satisfies the equations is not reported as converged
+INADMISSIBLE = "strain outside the model's range (a fibre compressed to nothing)"
+
 #: a point force: (X, (fx, fy, fz)) in the global frame, N
 PointForce = tuple[float, Sequence[float]]
 
@@ -72,12 +75,14 @@ def check_point_forces(robot: Robot, point_forces: Sequence[PointForce]):
 def make_result(model: Model, x, tensions, res: NewtonResult, **extra) -> Result:
     robot = model.robot
     q = np.asarray(x[: model.nq])
-    markers, backbone, y = shape_outputs(model.structure, model.values, q)
+    markers, backbone, y, fine = shape_outputs(model.structure, model.values, q)
+    if bool(res.converged) and not fine:
+        extra["extra"] = {**extra.get("extra", {}), "note": INADMISSIBLE}
     return Result(
         q=q, tensions=dict(zip(robot.tendon_names, map(float, tensions))),
         displacements=dict(zip(robot.tendon_names, map(float, y))),
         markers={m: markers[i] for i, m in enumerate(robot.marker_names)}, backbone=backbone,
-        converged=bool(res.converged), iterations=int(res.iterations),
+        converged=bool(res.converged) and bool(fine), iterations=int(res.iterations),
         residual=float(res.residual), **extra)
 
 

@@ -69,6 +69,7 @@ class Values(NamedTuple):
     nodes: jax.Array  # grid abscissae X_0 = 0 < ... < X_n = L
     Phi1: jax.Array  # (n_int, 6, nq) at each interval's first Zannah point
     Phi2: jax.Array
+    radius_z: jax.Array  # (n_int, 2) rod radius at the two Zannah points
     K_axial: jax.Array  # eq. 8a with Σ = diag(0, Jy, Jz, A, 0, 0): the part ∝ E
     K_shear: jax.Array  # eq. 8a with Σ = diag(Jx, 0, 0, 0, A, A): the part ∝ G
     stretch_unit: jax.Array  # (nq, n_t) small-strain ∂y/∂q at q = 0 (residual scaling)
@@ -166,6 +167,7 @@ class Model:
         r0 = rod.radius_knots[0][1]
         values = Values(
             length=np.float64(L), nodes=nodes, Phi1=basis(z1), Phi2=basis(z2),
+            radius_z=np.stack([rod.radius(z1), rod.radius(z2)], axis=1),
             K_axial=K_axial, K_shear=K_shear, stretch_unit=b, gravity_points=gp,
             gravity_weights=gw, tendons=tuple(tendon_values),
             marker_X=np.array([m.X for m in robot.markers], float),

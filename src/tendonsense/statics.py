@@ -135,22 +135,26 @@ def _merit(r):
     return jnp.where(jnp.isfinite(m), m, jnp.inf)
 
 
+def default_budget(numerics) -> int:
+    """Residual + Jacobian evaluations a solve may take, continuation included."""
+    return 10 * numerics.max_iterations
+
+
 @lru_cache(maxsize=CACHE_SIZE)
 def newton_solver(structure: Structure, measured: tuple[int, ...], n_z: int):
     """Compiled solver for the system with tendons ``measured`` and ``n_z`` unknowns:
-    ``solve(x0, drive, unknowns, values) -> NewtonResult``.
+    ``solve(x0, drive, unknowns, values, budget) -> NewtonResult``.
 
     One loop whose every pass evaluates the residual and its Jacobian at a trial point
     ``x + α dx`` at the load level ``λ``: accepted (Armijo on ½‖r‖²) it becomes the iterate
     and gives the next Newton step, rejected it halves α. A level whose Newton iteration fails
-    (α underflows or ``max_iterations`` evaluations) falls back: the full load from ``x0`` falls back
-    to continuation from the straight rod at λ = 1/4, a continuation step to half its size.
-    Every pass counts against a budget of ``10 max_iterations`` evaluations.
+    (α underflows or ``max_iterations`` evaluations) falls back: the full load from ``x0`` to
+    continuation from the straight rod at λ = 1/4, a continuation step to half its size.
+    Every pass counts against ``budget`` evaluations.
     """
     num = structure.numerics
-    budget = 10 * num.max_iterations
 
-    def solve(x0, drive, unknowns, values):
+    def solve(x0, drive, unknowns, values, budget):
         sc = scaling(values, measured)
         floor = values.energy_floor * jnp.sqrt(values.young_modulus)
 
@@ -209,9 +213,11 @@ def newton_solver(structure: Structure, measured: tuple[int, ...], n_z: int):
 
 
 def solve_system(structure: Structure, values: Values, measured: tuple[int, ...],
-                 drive: Drive, unknowns: Unknowns, x0=None) -> NewtonResult:
+                 drive: Drive, unknowns: Unknowns, x0=None, budget: int | None = None
+                 ) -> NewtonResult:
     """Newton from ``x0`` (default: the straight rod; a warm start may give q alone), load
-    continuation from the straight rod if the full load fails."""
+    continuation from the straight rod if the full load fails, within ``budget`` evaluations
+    (default :func:`default_budget`)."""
     n_z = unknowns.gravity.shape[0]
     solver = newton_solver(structure, tuple(measured), n_z)
     zero = jnp.zeros(structure.nq + n_z)
@@ -220,7 +226,18 @@ def solve_system(structure: Structure, values: Values, measured: tuple[int, ...]
     else:
         x0 = jnp.asarray(x0, float)
         x0 = jnp.concatenate([x0, zero[x0.size:]]) if x0.size == structure.nq else x0
-    return solver(x0, drive, unknowns, values)
+    budget = default_budget(structure.numerics) if budget is None else budget
+    return solver(x0, drive, unknowns, values, jnp.asarray(budget))
+
+
+def admissible(values: Values, q):
+    """Whether the strain stays in the model's range: every fibre keeps a positive stretch,
+    ``1 + εx − r √(κy² + κz²) > 0`` at every grid point (a fibre at distance r from the centre
+    line on the inside of the bend). A solution outside it would need the rod to compress to
+    nothing: equilibrium may hold numerically, but it is no state of the material."""
+    xi = jnp.stack([values.Phi1 @ q, values.Phi2 @ q], axis=1) + jnp.asarray([0, 0, 0, 1.0, 0, 0])
+    fibre = xi[..., 3] - values.radius_z * jnp.sqrt(xi[..., 1] ** 2 + xi[..., 2] ** 2)
+    return jnp.all(fibre > 0) & jnp.all(jnp.isfinite(q))
 
 
 @lru_cache(maxsize=CACHE_SIZE)
@@ -231,13 +248,14 @@ def _outputs_fn(structure: Structure):
         markers = points_at(structure, values, values.marker_X)
         grid, bb, mk = grid_frames(structure, values, q, backbone, markers)
         return (positions(mk, values.marker_offsets), positions(bb),
-                tendons.length_changes(structure, values, grid))
+                tendons.length_changes(structure, values, grid), admissible(values, q))
 
     return jax.jit(out)
 
 
 def shape_outputs(structure: Structure, values: Values, q):
-    """Marker positions (n_m, 3), backbone (101, 3) and tendon length changes at q."""
+    """Marker positions (n_m, 3), backbone (101, 3), tendon length changes and whether the
+    strain is :func:`admissible` at q."""
     return tuple(np.asarray(a) for a in _outputs_fn(structure)(values, jnp.asarray(q)))
 
 

@@ -26,20 +26,151 @@ from .forward import model_for, tendon_vector
 from .kinematics import Frames, grid_poses, positions
 from .model import VALUE_NAMES, Structure, points_at
 from .robot import Robot
-from .statics import (CACHE_SIZE, Drive, Unknowns, residual, scaling, shape_outputs,
-                      solve_system)
+from .statics import (CACHE_SIZE, Drive, Unknowns, admissible, residual, scaling,
+                      shape_outputs, solve_system)
 
 
 class Track(NamedTuple):
-    """Per-sample outputs (leading axis: sample)."""
+    """Per-sample outputs (leading axis: sample, for a series)."""
 
     x: jax.Array  # (N, nq + n_z) solution [q; z]
-    converged: jax.Array  # (N,)
+    converged: jax.Array  # (N,) converged and admissible
     iterations: jax.Array  # (N,) residual evaluations
     jacobians: jax.Array  # (N,) exact Jacobians computed
     dx_dm: jax.Array  # (N, nq + n_z, n_meas + n_T) sensitivity to [y_meas; T_columns]
     markers: jax.Array  # (N, n_markers, 3)
     lengths: jax.Array  # (N, n_t) tendon length changes, eq. 9
+    admissible: jax.Array  # (N,) strain within the model's range (:func:`admissible`)
+
+
+class Carry(NamedTuple):
+    """What a sample hands the next: the last good solution, the inverse Jacobian there, its
+    sensitivity to the measurements and those measurements."""
+
+    x: jax.Array
+    H: jax.Array
+    dx_dm: jax.Array
+    measurements: jax.Array
+    ok: jax.Array
+    count: jax.Array
+
+
+#: work budget of one sample on the fast path: residual evaluations and exact Jacobians
+MAX_EVALUATIONS, MAX_JACOBIANS = 60, 6
+
+
+def _sample_fns(structure: Structure, measured: tuple[int, ...],
+                tension_columns: tuple[int, ...], refine_every: int):
+    """``init(x0, d0, p0, unknowns, values) -> Carry`` and
+    ``step(carry, d, p, unknowns, values) -> (Carry, Track row)`` of the tracker (pure)."""
+    num = structure.numerics
+    nq = structure.nq
+    tcols = np.array(tension_columns, int)
+    sel = np.array(measured, int)
+
+    def at(values, p):  # the values of one sample and their residual scaling
+        v = values._replace(**p) if p else values
+        return v, scaling(v, measured)
+
+    def f(x, d, unknowns, vs):  # (r, load size, ∂r/∂T)
+        return residual(structure, vs[0], measured, x, d, unknowns, 1.0, vs[1],
+                        with_actuation=True)
+
+    def jac(x, d, unknowns, vs):
+        return jax.jacfwd(lambda x: f(x, d, unknowns, vs)[0])(x)
+
+    def merit(r):
+        m = 0.5 * jnp.dot(r, r)
+        return jnp.where(jnp.isfinite(m), m, jnp.inf)
+
+    def measurements(d):
+        return jnp.concatenate([d.targets, d.tensions[tcols]])
+
+    def init(x0, d0, p0, unknowns, values):
+        m0 = measurements(d0)
+        return Carry(x0, jnp.linalg.inv(jac(x0, d0, unknowns, at(values, p0))),
+                     jnp.zeros((x0.size, m0.size)), m0, jnp.asarray(False), jnp.asarray(0))
+
+    def step(carry: Carry, d, p, unknowns, values):
+        vs = at(values, p)
+        sc = vs[1]
+        floor = vs[0].energy_floor * jnp.sqrt(vs[0].young_modulus)
+        # first-order tangent predictor from the previous sample's sensitivity
+        guess = carry.x + jnp.where(carry.ok, carry.dx_dm @ (measurements(d) - carry.measurements),
+                                    0.0)
+        r, s, rT = f(guess, d, unknowns, vs)
+        st = dict(x=guess, r=r, s=s, rT=rT, H=carry.H, fresh=jnp.asarray(False),
+                  alpha=jnp.asarray(1.0), evals=jnp.asarray(1), jacs=jnp.asarray(0),
+                  status=jnp.where(jnp.linalg.norm(r) <= num.tolerance * (s + floor), 1, 0))
+
+        def cond(st):
+            return (st["status"] == 0) & (st["evals"] < MAX_EVALUATIONS)
+
+        def body(st):
+            dx = -st["H"] @ st["r"]
+            xt = st["x"] + st["alpha"] * dx
+            rt, ts, rTt = f(xt, d, unknowns, vs)
+            m0, mt = merit(st["r"]), merit(rt)
+            contracts = mt <= 0.25 * m0
+            armijo = mt <= (1 - 2e-4 * st["alpha"]) * m0
+            accept = contracts | (st["fresh"] & armijo)
+            conv = jnp.linalg.norm(rt) <= num.tolerance * (ts + floor)
+            refresh = ~accept & ~st["fresh"]
+            # good Broyden update of the inverse on an accepted step, exact on refresh
+            step, dr = xt - st["x"], rt - st["r"]
+            Hy = st["H"] @ dr
+            denom = jnp.dot(step, Hy)
+            safe = accept & (jnp.abs(denom) > 1e-300)
+            broyden = st["H"] + jnp.outer(step - Hy, step @ st["H"]) / jnp.where(
+                safe, denom, 1.0)
+            H = jax.lax.cond(refresh, lambda: jnp.linalg.inv(jac(st["x"], d, unknowns, vs)),
+                             lambda: jnp.where(safe, broyden, st["H"]))
+            give_up = (~accept & st["fresh"] & (st["alpha"] < 2.0**-30)) | (
+                refresh & (st["jacs"] >= MAX_JACOBIANS))
+            return dict(
+                x=jnp.where(accept, xt, st["x"]), r=jnp.where(accept, rt, st["r"]),
+                s=jnp.where(accept, ts, st["s"]), rT=jnp.where(accept, rTt, st["rT"]), H=H,
+                fresh=jnp.where(accept, False, True),
+                alpha=jnp.where(accept | refresh, 1.0, st["alpha"] / 2),
+                evals=st["evals"] + 1, jacs=st["jacs"] + refresh.astype(int),
+                status=jnp.where(accept, jnp.where(conv, 1, 0), jnp.where(give_up, 2, 0)))
+
+        st = jax.lax.while_loop(cond, body, st)
+        x = st["x"]
+        fine = admissible(vs[0], x[:nq])
+        ok = (st["status"] == 1) & fine
+        # sensitivity to the measurements [y_meas; T]: R_x dx = −R_m dm
+        # ∂r/∂y_meas is −√k on the length rows, ∂r/∂T = −L⁻¹B on the equilibrium rows
+        Ry = jnp.zeros((x.size, sel.size)).at[nq + jnp.arange(sel.size),
+                                               jnp.arange(sel.size)].set(-sc.root_k)
+        Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)
+        Rx = jax.vmap(lambda u: jax.jvp(lambda x: f(x, d, unknowns, vs)[0], (x,), (u,))[1],
+                      in_axes=1, out_axes=1)
+
+        def refine(H):
+            # the exact products W = R_x v give a block (multi-secant) Broyden update of the
+            # inverse, H W = v, then the refined v = −H R_m
+            v = -H @ Rm
+            W = Rx(v)
+            HW = H @ W
+            M = v.T @ HW
+            ok_m = jnp.abs(jnp.linalg.det(M)) > 1e-300
+            Hn = H + (v - HW) @ jnp.linalg.solve(jnp.where(ok_m, M, jnp.eye(M.shape[0])),
+                                                 v.T @ H)
+            return jnp.where(ok_m, Hn, H)
+
+        H = jax.lax.cond(carry.count % refine_every == 0, refine, lambda H: H, st["H"])
+        v = -H @ Rm
+        grid, g = grid_poses(values, x[:nq], points_at(structure, values, values.marker_X))
+        markers = positions(Frames(g, None), values.marker_offsets)
+        y = tendons.length_changes(structure, values, Frames(grid, None))
+        # a failed sample leaves the carry as it was: the next one starts from the last good
+        new = Carry(x, H, v, measurements(d), ok, carry.count + 1)
+        keep = carry._replace(count=carry.count + 1)
+        out = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, keep)
+        return out, Track(x, ok, st["evals"], st["jacs"], v, markers, y, fine)
+
+    return init, step
 
 
 @lru_cache(maxsize=CACHE_SIZE)
@@ -50,120 +181,25 @@ def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
     by name (:data:`~tendonsense.model.VALUE_NAMES`, may be empty), both with a leading sample
     axis. The sensitivity columns are the measured lengths, then the tensions of the tendons
     ``tension_columns``."""
-    num = structure.numerics
-    max_evals = 4 * num.max_iterations
-    nq = structure.nq
+    init, step = _sample_fns(structure, measured, tension_columns, refine_every)
 
     def track(x0, drives, unknowns, values, varied):
-        markers_at = points_at(structure, values, values.marker_X)
-        fixed = (values, scaling(values, measured))
-
-        def at(p):  # the values of one sample and their residual scaling
-            if not p:
-                return fixed
-            v = values._replace(**p)
-            return v, scaling(v, measured)
-
-        def f(x, d, vs):  # (r, load size, ∂r/∂T)
-            return residual(structure, vs[0], measured, x, d, unknowns, 1.0, vs[1],
-                            with_actuation=True)
-
-        def jac(x, d, vs):
-            return jax.jacfwd(lambda x: f(x, d, vs)[0])(x)
-
-        def merit(r):
-            m = 0.5 * jnp.dot(r, r)
-            return jnp.where(jnp.isfinite(m), m, jnp.inf)
-
-        tcols = np.array(tension_columns, int)
-        sel = np.array(measured, int)
-
-        def measurements(d):
-            return jnp.concatenate([d.targets, d.tensions[tcols]])
-
-        def sample(carry, inputs):
-            d, p = inputs
-            x_prev, H_prev, dxdm_prev, m_prev, ok_prev, count = carry
-            vs = at(p)
-            sc = vs[1]
-            floor = vs[0].energy_floor * jnp.sqrt(vs[0].young_modulus)
-            # first-order tangent predictor from the previous sample's sensitivity
-            guess = x_prev + jnp.where(ok_prev, dxdm_prev @ (measurements(d) - m_prev), 0.0)
-            r, s, rT = f(guess, d, vs)
-            st = dict(x=guess, r=r, s=s, rT=rT, H=H_prev, fresh=jnp.asarray(False),
-                      alpha=jnp.asarray(1.0), evals=jnp.asarray(1), jacs=jnp.asarray(0),
-                      status=jnp.where(jnp.linalg.norm(r) <= num.tolerance * (s + floor), 1, 0))
-
-            def cond(st):
-                return (st["status"] == 0) & (st["evals"] < max_evals)
-
-            def body(st):
-                dx = -st["H"] @ st["r"]
-                xt = st["x"] + st["alpha"] * dx
-                rt, ts, rTt = f(xt, d, vs)
-                m0, mt = merit(st["r"]), merit(rt)
-                contracts = mt <= 0.25 * m0
-                armijo = mt <= (1 - 2e-4 * st["alpha"]) * m0
-                accept = contracts | (st["fresh"] & armijo)
-                conv = jnp.linalg.norm(rt) <= num.tolerance * (ts + floor)
-                refresh = ~accept & ~st["fresh"]
-                # good Broyden update of the inverse on an accepted step, exact on refresh
-                step, dr = xt - st["x"], rt - st["r"]
-                Hy = st["H"] @ dr
-                denom = jnp.dot(step, Hy)
-                safe = accept & (jnp.abs(denom) > 1e-300)
-                broyden = st["H"] + jnp.outer(step - Hy, step @ st["H"]) / jnp.where(
-                    safe, denom, 1.0)
-                H = jax.lax.cond(refresh, lambda: jnp.linalg.inv(jac(st["x"], d, vs)),
-                                 lambda: jnp.where(safe, broyden, st["H"]))
-                give_up = ~accept & st["fresh"] & (st["alpha"] < 2.0**-30)
-                new = dict(
-                    x=jnp.where(accept, xt, st["x"]), r=jnp.where(accept, rt, st["r"]),
-                    s=jnp.where(accept, ts, st["s"]), rT=jnp.where(accept, rTt, st["rT"]), H=H,
-                    fresh=jnp.where(accept, False, True),
-                    alpha=jnp.where(accept | refresh, 1.0, st["alpha"] / 2),
-                    evals=st["evals"] + 1, jacs=st["jacs"] + refresh.astype(int),
-                    status=jnp.where(accept, jnp.where(conv, 1, 0), jnp.where(give_up, 2, 0)))
-                return new
-
-            st = jax.lax.while_loop(cond, body, st)
-            ok = st["status"] == 1
-            x = st["x"]
-            # sensitivity to the measurements [y_meas; T]: R_x dx = −R_m dm
-            # ∂r/∂y_meas is −√k on the length rows, ∂r/∂T = −L⁻¹B on the equilibrium rows
-            Ry = jnp.zeros((x.size, sel.size)).at[nq + jnp.arange(sel.size),
-                                                   jnp.arange(sel.size)].set(-sc.root_k)
-            Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)
-            Rx = jax.vmap(lambda u: jax.jvp(lambda x: f(x, d, vs)[0], (x,), (u,))[1],
-                          in_axes=1, out_axes=1)
-            def refine(H):
-                # the exact products W = R_x v give a block (multi-secant) Broyden update of the
-                # inverse, H W = v, then the refined v = −H R_m
-                v = -H @ Rm
-                W = Rx(v)
-                HW = H @ W
-                M = v.T @ HW
-                ok_m = jnp.abs(jnp.linalg.det(M)) > 1e-300
-                Hn = H + (v - HW) @ jnp.linalg.solve(jnp.where(ok_m, M, jnp.eye(M.shape[0])),
-                                                     v.T @ H)
-                return jnp.where(ok_m, Hn, H)
-
-            H = jax.lax.cond(count % refine_every == 0, refine, lambda H: H, st["H"])
-            v = -H @ Rm
-            grid, g = grid_poses(values, x[:nq], markers_at)
-            markers = positions(Frames(g, None), values.marker_offsets)
-            y = tendons.length_changes(structure, values, Frames(grid, None))
-            carry = (jnp.where(ok, x, x_prev), H, v, measurements(d), ok, count + 1)
-            return carry, Track(x, ok, st["evals"], st["jacs"], v, markers, y)
-
         d0, p0 = jax.tree_util.tree_map(lambda a: a[0], (drives, varied))
-        m0 = measurements(d0)
-        carry = (x0, jnp.linalg.inv(jac(x0, d0, at(p0))), jnp.zeros((x0.size, m0.size)), m0,
-                 jnp.asarray(False), jnp.asarray(0))
-        _, out = jax.lax.scan(sample, carry, (drives, varied))
+        carry = init(x0, d0, p0, unknowns, values)
+        _, out = jax.lax.scan(lambda c, dp: step(c, *dp, unknowns, values), carry,
+                              (drives, varied))
         return out
 
     return jax.jit(track)
+
+
+@lru_cache(maxsize=CACHE_SIZE)
+def stepper(structure: Structure, measured: tuple[int, ...], n_z: int,
+            tension_columns: tuple[int, ...], refine_every: int = 1):
+    """The tracker one sample at a time: compiled ``init(x0, d0, p0, unknowns, values)`` and
+    ``step(carry, d, p, unknowns, values) -> (carry, Track row)``."""
+    init, step = _sample_fns(structure, measured, tension_columns, refine_every)
+    return jax.jit(init), jax.jit(step)
 
 
 def stacked_drives(prob: Problem, tensions: np.ndarray, targets: np.ndarray) -> Drive:
@@ -185,6 +221,21 @@ class SampleEstimate:
     converged: bool
     iterations: int
     x: np.ndarray
+    note: str = ""  # why a sample is not converged
+
+    @staticmethod
+    def failed(prob: Problem, note: str, x=None, iterations: int = 0) -> "SampleEstimate":
+        """A sample that has no estimate (not-a-number magnitudes and markers)."""
+        nan = np.full(prob.n_z, np.nan)
+        x = np.full(prob.model.nq + prob.n_z, np.nan) if x is None else x
+        return SampleEstimate(nan, nan.copy(), {m: np.full(3, np.nan)
+                                                for m in prob.robot.marker_names},
+                              False, iterations, x, note)
+
+
+#: evaluations of the solve from the straight rod that a sample the fast path could not
+#: converge gets once an earlier sample has converged (the first gets the full budget)
+RESCUE_BUDGET = 12
 
 
 def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
@@ -205,10 +256,15 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
     tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.any(T != 0, axis=0)))))
     track = tracker(model.structure, prob.measured, prob.n_z, tcols, 4)
     meas = list(prob.measured)
-    out: list[SampleEstimate] = []
-    x0 = None
-    for start in range(0, n, chunk):
-        idx = range(start, min(n, start + chunk))
+    out: list[SampleEstimate | None] = [None] * n
+    for k in range(n):
+        error = prob.reading_error(T[k], Y[k])
+        if error:
+            out[k] = SampleEstimate.failed(prob, f"bad value: {error}")
+    valid = [k for k in range(n) if out[k] is None]
+    x0, seen_good = None, False
+    for start in range(0, len(valid), chunk):
+        idx = valid[start:start + chunk]
         if x0 is None:  # from the straight rod; a sample that fails falls back below
             x0 = np.zeros(model.nq + prob.n_z)
         # a fixed scan length (padded with the last sample) keeps one compiled tracker
@@ -221,30 +277,42 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
                 scale = np.concatenate([np.full(len(meas), noise.length),
                                         noise.tension * np.abs(T[k, list(tcols)])])
                 sigma = np.sqrt(((dz * scale) ** 2).sum(axis=1))
-                out.append(SampleEstimate(
+                out[k] = SampleEstimate(
                     tr.x[j, model.nq:], sigma, dict(zip(robot.marker_names, tr.markers[j])),
-                    True, int(tr.iterations[j]), tr.x[j]))
+                    True, int(tr.iterations[j]), tr.x[j])
             else:
-                out.append(_from_result(estimate_problem(prob, displacements[k], tensions[k],
-                                                         noise)))
-        good = [e.x for e in out if e.converged]
-        x0 = good[-1] if good else None
+                out[k] = _from_result(estimate_problem(
+                    prob, displacements[k], tensions[k], noise,
+                    budget=RESCUE_BUDGET if seen_good else None))
+            seen_good = seen_good or out[k].converged
+        good = [out[k].x for k in idx if out[k].converged]
+        x0 = good[-1] if good else x0
         if progress:
-            progress(len(out), n)
+            progress(idx[-1] + 1, n)
+    if progress and not valid:
+        progress(n, n)
     return out
 
 
 def _from_result(r) -> SampleEstimate:
+    note = "" if r.converged else r.extra.get("note", "did not converge")
     return SampleEstimate(np.asarray(r.magnitudes), np.asarray(r.sigma), dict(r.markers),
-                          bool(r.converged), int(r.iterations), np.asarray(r.extra["x"]))
+                          bool(r.converged), int(r.iterations), np.asarray(r.extra["x"]), note)
 
 
 def _one_by_one(prob, displacements, tensions, noise, progress):
     out, x0 = [], None
+    robot = prob.robot
     for k, (y, t) in enumerate(zip(displacements, tensions)):
+        error = prob.reading_error(tendon_vector(robot, t, "tension"),
+                                   tendon_vector(robot, y, "displacement"))
+        if error:
+            out.append(SampleEstimate.failed(prob, f"bad value: {error}"))
+            continue
         r = estimate_problem(prob, y, t, noise, x0)
         if not r.converged:  # a bad warm start must not spoil the sample
-            r = estimate_problem(prob, y, t, noise, None)
+            r = estimate_problem(prob, y, t, noise, None,
+                                 budget=None if x0 is None else RESCUE_BUDGET)
         if r.converged:
             x0 = r.extra["x"]
         out.append(_from_result(r))
@@ -363,9 +431,9 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
                 v = base._replace(**{name: jnp.asarray(a[k]) for name, a in varied.items()})
                 res = solve_system(structure, v, (), jax.tree_util.tree_map(
                     lambda a: a[0], drive([k])), unknowns)
-                markers, _, lengths = shape_outputs(structure, v, res.x)
+                markers, _, lengths, fine = shape_outputs(structure, v, res.x)
                 q[k], mk[k], y[k] = np.asarray(res.x), markers, lengths
-                conv[k], its[k] = bool(res.converged), int(res.evaluations)
+                conv[k], its[k] = bool(res.converged) and bool(fine), int(res.evaluations)
             good = np.flatnonzero(conv[idx])
             if good.size:
                 x0 = q[idx[good[-1]]]

@@ -1,0 +1,144 @@
+"""Live estimation: readings arrive one at a time and each is answered within a bounded amount
+of work, warm-started from the last good sample (eq. 17 on the fast path of
+:mod:`tendonsense.tracking`)."""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .estimation import Noise, Problem, estimate_problem
+from .forward import INADMISSIBLE
+from .statics import solve_system
+from .tracking import SampleEstimate, stepper
+
+
+class OnlineEstimator:
+    """Estimate shape and load magnitudes sample by sample, e.g. inside a data-acquisition
+    loop::
+
+        online = OnlineEstimator(problem(robot, ["t1"], [PointForceUnknown(0.25, (0, 0, -1))]))
+        for y, T in readings:
+            est = online.update({"t1": y}, {"t1": T})
+            est.magnitudes, est.sigma, est.converged, est.note
+
+    Every call ends within a work budget: at most ``MAX_EVALUATIONS`` residual evaluations
+    and ``MAX_JACOBIANS`` exact Jacobians of the warm-started quasi-Newton step
+    (:mod:`tendonsense.tracking`), then, if that fails and time is left of ``time_limit``
+    (s), one solve from the straight rod with as many evaluations as fit in the time left.
+    A bad reading (non-finite, a negative tension, a tendon pulled in by more than its length)
+    is answered at once, not converged, with the reason in ``note``; a sample that fails
+    leaves the state as it was, so the next one starts from the last good sample.
+    Overdetermined problems (more measured tendons than unknowns) take the least-squares
+    solver of :mod:`tendonsense.estimation` per sample, warm-started.
+    """
+
+    def __init__(self, prob: Problem, noise: Noise = Noise(), time_limit: float = 0.02):
+        self.problem, self.noise, self.time_limit = prob, noise, time_limit
+        model = prob.model
+        self._square = len(prob.measured) == prob.n_z
+        self._tcols = tuple(range(model.n_tendons))
+        self._init, self._step = stepper(model.structure, prob.measured, prob.n_z,
+                                         self._tcols, 4)
+        self._carry = None
+        self._x = None  # last good [q; z]
+        self._eval_cost = None  # s per evaluation with a Jacobian, measured
+
+    def reset(self):
+        """Forget the last good sample: the next one starts from the straight rod."""
+        self._carry, self._x = None, None
+
+    def update(self, displacements: Mapping[str, float],
+               tensions: Mapping[str, float]) -> SampleEstimate:
+        """Estimate one sample of readings: tendon length changes (m) and tensions (N) by
+        tendon name."""
+        start = time.perf_counter()
+        prob = self.problem
+        try:
+            T, y = self._readings(displacements, tensions)
+        except ValueError as exc:
+            return self._failed(f"bad value: {exc}")
+        drive = prob.drive(T, y[list(prob.measured)])
+        if not self._square:
+            return self._least_squares(displacements, tensions)
+        model = prob.model
+        values, unknowns = model.values, prob.unknowns
+        if self._carry is None:
+            t0 = time.perf_counter()
+            self._carry = self._init(jnp.zeros(model.nq + prob.n_z), drive, {}, unknowns, values)
+            jax.block_until_ready(self._carry)
+            self._eval_cost = self._eval_cost or time.perf_counter() - t0
+        carry, row = self._step(self._carry, drive, {}, unknowns, values)
+        row = jax.device_get(row)
+        if row.converged:
+            self._carry, self._x = carry, row.x
+            return self._estimate(row, T, int(row.iterations))
+        note = INADMISSIBLE if not row.admissible else "did not converge within the work budget"
+        left = self.time_limit - (time.perf_counter() - start)
+        budget = None if self._x is None else int(left / max(self._eval_cost, 1e-6))
+        if budget is not None and budget < 3:
+            return self._failed(note, row)
+        # from the straight rod, with load continuation, within the time left
+        res = solve_system(model.structure, values, prob.measured, drive, unknowns, None,
+                           budget)
+        if not bool(res.converged):
+            return self._failed(note, row)
+        carry = self._init(res.x, drive, {}, unknowns, values)
+        carry, row2 = self._step(carry, drive, {}, unknowns, values)
+        row2 = jax.device_get(row2)
+        if not row2.converged:
+            return self._failed(INADMISSIBLE if not row2.admissible else note, row2)
+        self._carry, self._x = carry, row2.x
+        return self._estimate(row2, T, int(row.iterations + res.evaluations + row2.iterations))
+
+    def _readings(self, displacements, tensions):
+        robot = self.problem.robot
+        names = robot.tendon_names
+        T, y = np.zeros(len(names)), np.zeros(len(names))
+        for what, given, out in (("tension", tensions, T), ("displacement", displacements, y)):
+            for name, v in given.items():
+                if name not in names:
+                    raise ValueError(f"{what} {name}: no such tendon")
+                v = float(v)
+                if not math.isfinite(v):
+                    raise ValueError(f"{what} {name} is not a finite number")
+                out[names.index(name)] = v
+        for j in self.problem.measured:
+            if names[j] not in displacements or names[j] not in tensions:
+                raise ValueError(f"tendon {names[j]} is measured: it needs a displacement and "
+                                 f"a tension")
+        error = self.problem.reading_error(T, y)
+        if error:
+            raise ValueError(error)
+        return T, y
+
+    def _estimate(self, row, T, iterations) -> SampleEstimate:
+        prob, noise = self.problem, self.noise
+        nq = prob.model.nq
+        dz = row.dx_dm[nq:, :]
+        scale = np.concatenate([np.full(len(prob.measured), noise.length),
+                                noise.tension * np.abs(T[list(self._tcols)])])
+        sigma = np.sqrt(((dz * scale) ** 2).sum(axis=1))
+        return SampleEstimate(row.x[nq:], sigma,
+                              dict(zip(prob.robot.marker_names, row.markers)), True, iterations,
+                              row.x)
+
+    def _failed(self, note: str, row=None) -> SampleEstimate:
+        if row is None:
+            return SampleEstimate.failed(self.problem, note)
+        return SampleEstimate.failed(self.problem, note, row.x, int(row.iterations))
+
+    def _least_squares(self, displacements, tensions) -> SampleEstimate:
+        r = estimate_problem(self.problem, displacements, tensions, self.noise, self._x)
+        if not r.converged and self._x is not None:
+            r = estimate_problem(self.problem, displacements, tensions, self.noise, None)
+        if not r.converged:
+            return self._failed(r.extra.get("note", "did not converge"))
+        self._x = r.extra["x"]
+        return SampleEstimate(np.asarray(r.magnitudes), np.asarray(r.sigma), dict(r.markers),
+                              True, int(r.iterations), np.asarray(r.extra["x"]))
