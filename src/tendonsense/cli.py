@@ -7,6 +7,7 @@ Exit status: 0 success, 1 bad input (one line on stderr, nothing on stdout), 2 b
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import sys
 
@@ -92,8 +93,11 @@ def build_parser() -> argparse.ArgumentParser:
                    metavar="X,DX,DY,DZ|gravity",
                    help="unknown load: a point force of unknown magnitude along global "
                         "(DX, DY, DZ) at X, or the gravity scale")
-    p.add_argument("--readings", metavar="READINGS.csv", help="estimate every row of a log")
-    p.add_argument("-o", "--output", metavar="OUT.csv", help="output file for --readings")
+    p.add_argument("--readings", metavar="READINGS.csv",
+                   help="estimate every row of a log; '-' reads it live from standard input")
+    p.add_argument("-o", "--output", metavar="OUT.csv",
+                   help="output file for --readings (written at the end, atomically); without "
+                        "it, or '-', each row goes to standard output as soon as it is estimated")
     p.add_argument("--length-noise", type=_positive, default=1e-4, metavar="M",
                    help="1-σ tendon length noise for the uncertainty band (default 1e-4 m)")
     p.add_argument("--tension-noise", type=_positive, default=0.025 / 3, metavar="FRACTION",
@@ -267,9 +271,24 @@ def _estimate(args, robot):
     from . import readings as rd
     if args.displacement or args.tension:
         raise UsageError("tendonsense estimate: --readings replaces --displacement/--tension")
-    if not args.output:
-        raise UsageError("tendonsense estimate: --readings needs -o OUT.csv")
-    measured, samples = rd.read_readings(args.readings, robot)
+    if args.output in (None, "-"):
+        return _stream(args, robot, noise)
+    if args.readings == "-":
+        lines = sys.stdin
+        try:
+            columns = rd.parse_header(next(csv.reader(lines)), robot, "<stdin>")
+        except StopIteration:
+            raise rd.ReadingsError("<stdin>: no header row") from None
+        samples = []
+        try:
+            for i, raw in enumerate(csv.reader(lines), start=1):
+                if any(c.strip() for c in raw):
+                    samples.append(rd.parse_row(i, raw, columns, robot))
+        except KeyboardInterrupt:
+            pass  # estimate what has been read
+        measured = columns.measured
+    else:
+        measured, samples = rd.read_readings(args.readings, robot)
     prog = _Progress(args, "estimate")
     results = rd.estimate_readings(robot, measured, samples, args.unknown, _point_forces(args),
                                    noise, progress=prog)
@@ -289,6 +308,29 @@ def _estimate(args, robot):
         print(f"estimated {len(samples)} samples: {len(ok)} converged, "
               f"{summary['skipped']} skipped; wrote {args.output}")
     return len(ok) == len(samples)
+
+
+def _stream(args, robot, noise) -> bool:
+    """Output rows on stdout as they are estimated; an interrupt ends cleanly."""
+    from . import readings as rd
+
+    source = "<stdin>" if args.readings == "-" else args.readings
+
+    def skipped(s):
+        print(f"tendonsense: {source}: row {s.row} skipped: {s.error}", file=sys.stderr)
+
+    fh = sys.stdin if args.readings == "-" else open(args.readings, newline="")
+    rows = good = 0
+    try:
+        with fh:
+            rows, good = rd.stream_readings(robot, fh, sys.stdout, args.unknown,
+                                            _point_forces(args), noise, source, skipped)
+    except KeyboardInterrupt:
+        return True
+    except BrokenPipeError:  # the reader went away: stop quietly
+        sys.stderr.close()
+        return True
+    return good == rows
 
 
 def _experiments(args) -> bool:

@@ -1,0 +1,95 @@
+"""Live estimation (issue 9): the online estimator and streaming through the CLI."""
+
+import csv
+import io
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from conftest import PROTOTYPE
+from tendonsense.estimation import PointForceUnknown, problem
+from tendonsense.forward import solve
+from tendonsense.online import OnlineEstimator
+
+
+@pytest.fixture(scope="module")
+def readings(prototype):
+    F = np.linspace(0.1, 0.3, 12)
+    T = np.linspace(1.5, 2.5, 12)
+    y = [solve(prototype, {"t1": t}, [(0.25, (0, 0, -f))]).displacements["t1"]
+         for f, t in zip(F, T)]
+    return F, T, np.array(y)
+
+
+def test_update_follows_the_readings_and_survives_bad_ones(prototype, readings):
+    F, T, y = readings
+    online = OnlineEstimator(problem(prototype, ["t1"], [PointForceUnknown(0.25, (0, 0, -1))]))
+    bad = {3: (-5.0, T[3], "pulls in more"), 6: (y[6], -1.0, "negative"),
+           8: (y[8], 1e6, "range")}
+    for k in range(len(F)):
+        yk, Tk, why = bad.get(k, (y[k], T[k], None))
+        t0 = time.perf_counter()
+        est = online.update({"t1": yk}, {"t1": Tk})
+        spent = time.perf_counter() - t0
+        if why is None:
+            assert est.converged, (k, est.note)
+            assert est.magnitudes[0] == pytest.approx(F[k], rel=1e-8)
+            assert 0 < est.sigma[0] < 0.05
+        else:
+            assert not est.converged and why in est.note
+            assert np.isnan(est.magnitudes[0])
+            assert spent < 1.0  # bounded work (the benchmark measures the milliseconds)
+
+
+def test_a_tension_the_material_cannot_take_is_not_converged(prototype):
+    r = solve(prototype, {"t1": 1e6})
+    assert not r.converged
+
+
+def stream(args, text):
+    return subprocess.run([sys.executable, "-m", "tendonsense.cli", "estimate", str(PROTOTYPE),
+                           "--readings", "-", *args], input=text, capture_output=True,
+                          text=True, timeout=600)
+
+
+def test_cli_streams_stdin_to_stdout(readings):
+    F, T, y = readings
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["time", "tension_t1", "displacement_t1"])
+    for k in range(len(F)):
+        w.writerow([0.01 * k, T[k], "oops" if k == 4 else y[k]])
+    p = stream(["--unknown", "0.25,0,0,-1"], buf.getvalue())
+    assert p.returncode == 3, p.stderr  # row 5 was bad
+    rows = list(csv.DictReader(io.StringIO(p.stdout)))
+    assert len(rows) == len(F)
+    for k, r in enumerate(rows):
+        if k == 4:
+            assert r["converged"] == "false" and "displacement_t1" in r["note"]
+        else:
+            assert r["converged"] == "true"
+            assert float(r["magnitude_1"]) == pytest.approx(F[k], rel=1e-6)
+
+
+def test_cli_stream_flushes_each_row_before_the_next_arrives(readings):
+    """Each answer is on stdout while the input is still open."""
+    F, T, y = readings
+    proc = subprocess.Popen([sys.executable, "-m", "tendonsense.cli", "estimate",
+                             str(PROTOTYPE), "--readings", "-", "--unknown", "0.25,0,0,-1"],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
+    try:
+        proc.stdin.write("time,tension_t1,displacement_t1\n")
+        proc.stdin.flush()
+        assert proc.stdout.readline().startswith("row,time,magnitude_1")
+        for k in range(3):
+            proc.stdin.write(f"{k},{float(T[k])!r},{float(y[k])!r}\n")
+            proc.stdin.flush()
+            row = proc.stdout.readline().split(",")
+            assert row[0] == str(k + 1) and float(row[2]) == pytest.approx(F[k], rel=1e-6)
+        proc.stdin.close()
+        assert proc.wait(timeout=60) == 0
+    finally:
+        proc.kill()
