@@ -93,3 +93,20 @@ def test_cli_stream_flushes_each_row_before_the_next_arrives(readings):
         assert proc.wait(timeout=60) == 0
     finally:
         proc.kill()
+
+
+def test_overdetermined_exact_samples_are_all_converged(prototype):
+    """Three tendons read, one unknown force (least squares, eq. 17): exact, consistent
+    readings must never be marked as failed."""
+    from tendonsense.tracking import solve_batch
+    names = prototype.tendon_names
+    n = 40
+    T = np.tile([1.0, 0.5, 0.7], (n, 1)) * np.linspace(1, 2, n)[:, None]
+    f = np.linspace(0.1, 0.3, n)
+    truth = solve_batch(prototype, T, [(0.25, np.stack([0 * f, 0 * f, -f], axis=1))])
+    online = OnlineEstimator(problem(prototype, list(names),
+                                     [PointForceUnknown(0.25, (0, 0, -1))]))
+    for k in range(n):
+        est = online.update({t: truth.displacements[t][k] for t in names}, dict(zip(names, T[k])))
+        assert est.converged, k
+        assert est.magnitudes[0] == pytest.approx(f[k], rel=1e-7)
