@@ -131,7 +131,7 @@ def problem(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
             k += 1
     F = np.concatenate([F_known, np.zeros((len(forces), 3))])
     X = np.concatenate([X_known, [u.X for u in forces]])
-    unk = Unknowns(jnp.zeros((len(robot.tendons), n_p)), jnp.asarray(Fz), jnp.asarray(az))
+    unk = Unknowns(np.zeros((len(robot.tendons), n_p)), Fz, az)
     idx = tuple(robot.tendon_names.index(n) for n in measured)
     return Problem(robot, model_for(robot), idx, unk, F, X, gravity)
 
@@ -176,7 +176,7 @@ def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, 
         d = drive._replace(
             forces=drive.forces + jnp.tensordot(jnp.asarray(z), prob.unknowns.forces, axes=1),
             gravity=drive.gravity + jnp.asarray(z) @ prob.unknowns.gravity,
-            targets=jnp.zeros(0))
+            targets=np.zeros(0))
         res = solve_system(structure, values, (), d, statics_unknowns, q0, budget)
         return res, shape_outputs(structure, values, res.x)[2][sel] - y_meas
 

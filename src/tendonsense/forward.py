@@ -93,8 +93,7 @@ def _statics_drive(robot: Robot, tensions, point_forces) -> Drive:
     X, F = check_point_forces(robot, point_forces)
     if not X.size:
         X, F = np.zeros(1), np.zeros((1, 3))
-    return Drive(jnp.asarray(T), jnp.asarray(F), jnp.asarray(X), jnp.asarray(robot.gravity),
-                 jnp.zeros(0))
+    return Drive(T, F, X, np.asarray(robot.gravity, float), np.zeros(0))
 
 
 def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
@@ -122,12 +121,12 @@ def forward_kinematics(robot: Robot, displacements: Mapping[str, float],
         raise ValueError(f"tendon {clash[0]}: give its displacement or its tension, not both")
     model = model_for(robot)
     drive = _statics_drive(robot, tensions, point_forces)._replace(
-        targets=jnp.asarray(y[list(measured)]))
+        targets=y[list(measured)])
     n_z = len(measured)
     select = np.zeros((len(robot.tendons), n_z))
     select[list(measured), np.arange(n_z)] = 1.0
     unknowns = Unknowns.none(len(robot.tendons), drive.load_X.shape[0], n_z)._replace(
-        tensions=jnp.asarray(select))
+        tensions=select)
     res = solve_system(model.structure, model.values, measured, drive, unknowns, q0)
     z = np.asarray(res.x[model.nq:])
     return make_result(model, res.x, np.asarray(drive.tensions) + select @ z, res)

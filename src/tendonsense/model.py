@@ -178,7 +178,7 @@ class Model:
             energy_floor=np.float64(1e-6 * np.sqrt(r0**4 / L)))
         structure = Structure(tuple(robot.strain), tuple(groups), len(robot.tendons),
                               robot.numerics)
-        return Model(robot, structure, jax.tree_util.tree_map(jnp.asarray, values))
+        return Model(robot, structure, values)
 
     def with_values(self, **changes) -> "Model":
         """The same model with other values by name (:data:`VALUE_NAMES`); ``friction`` is one
@@ -187,9 +187,9 @@ class Model:
             if name not in VALUE_NAMES:
                 raise ValueError(f"{name}: not a value that can be changed (one of "
                                  f"{', '.join(VALUE_NAMES)})")
-        v = {k: jnp.asarray(x, float) for k, x in changes.items()}
+        v = {k: np.asarray(x, float) for k, x in changes.items()}
         if "friction" in v:
-            v["friction"] = jnp.broadcast_to(v["friction"], self.values.friction.shape)
+            v["friction"] = np.broadcast_to(v["friction"], np.shape(self.values.friction))
         return Model(self.robot, self.structure, self.values._replace(**v))
 
 

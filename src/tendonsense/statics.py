@@ -56,8 +56,8 @@ class Unknowns(NamedTuple):
 
     @staticmethod
     def none(n_tendons: int, n_loads: int = 0, n_z: int = 0) -> "Unknowns":
-        return Unknowns(jnp.zeros((n_tendons, n_z)), jnp.zeros((n_z, n_loads, 3)),
-                        jnp.zeros((n_z, 3)))
+        return Unknowns(np.zeros((n_tendons, n_z)), np.zeros((n_z, n_loads, 3)),
+                        np.zeros((n_z, 3)))
 
 
 class Terms(NamedTuple):
@@ -220,14 +220,14 @@ def solve_system(structure: Structure, values: Values, measured: tuple[int, ...]
     (default :func:`default_budget`)."""
     n_z = unknowns.gravity.shape[0]
     solver = newton_solver(structure, tuple(measured), n_z)
-    zero = jnp.zeros(structure.nq + n_z)
+    zero = np.zeros(structure.nq + n_z)
     if x0 is None:
         x0 = zero
     else:
-        x0 = jnp.asarray(x0, float)
-        x0 = jnp.concatenate([x0, zero[x0.size:]]) if x0.size == structure.nq else x0
+        x0 = np.asarray(x0, float)
+        x0 = np.concatenate([x0, zero[x0.size:]]) if x0.size == structure.nq else x0
     budget = default_budget(structure.numerics) if budget is None else budget
-    return solver(x0, drive, unknowns, values, jnp.asarray(budget))
+    return solver(x0, drive, unknowns, values, np.asarray(budget, np.int64))
 
 
 def admissible(values: Values, q):
