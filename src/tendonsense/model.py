@@ -196,10 +196,11 @@ class Model:
 def points_at(structure: Structure, values: Values, X) -> PointSet:
     """Material points at ``X`` (traced, any shape → flat), each reached by a partial Magnus
     step from the grid node at or below it; differentiable in X."""
+    nodes = jnp.asarray(values.nodes)
     X = jnp.clip(jnp.ravel(jnp.asarray(X, float)), 0.0, values.length)
-    n_int = values.nodes.shape[0] - 1
-    start = jnp.clip(jnp.searchsorted(values.nodes, X, side="right") - 1, 0, n_int - 1)
-    x0 = values.nodes[start]
+    n_int = nodes.shape[0] - 1
+    start = jnp.clip(jnp.searchsorted(nodes, X, side="right") - 1, 0, n_int - 1)
+    x0 = nodes[start]
     h = X - x0
     basis = structure.basis
     return PointSet(start, h, basis(x0 + (0.5 - _Z) * h, values.length, jnp),

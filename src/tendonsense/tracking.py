@@ -402,6 +402,8 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     structure, base = model.structure, model.values
     T, X, F, varied = _batch_inputs(robot, base, tensions, point_forces, values)
     n, n_t = T.shape
+    if n == 0:
+        raise ValueError("batch: no samples")
     g = np.broadcast_to(np.asarray(robot.gravity, float), (n, 3))
     unknowns = Unknowns.none(n_t, X.shape[1])
     tcols = tuple(int(j) for j in np.flatnonzero(np.any(T != 0, axis=0)))
