@@ -36,9 +36,9 @@ class OnlineEstimator:
     A bad reading (non-finite, a negative tension, a tendon pulled in by more than its length)
     is answered at once, not converged, with the reason in ``note``; a sample that fails
     leaves the state as it was, so the next one starts from the last good sample.
-    Overdetermined problems (more measured tendons than unknowns) take the least-squares
-    solver of :mod:`tendonsense.estimation` per sample, warm-started (slower, about 15 ms a
-    sample, and bounded only by its iteration limits).
+    Overdetermined problems (more measured tendons than unknowns) take Gauss–Newton SQP
+    steps on the same fast path; their rescue is the least-squares solver of
+    :mod:`tendonsense.estimation` with the same evaluation budget per equilibrium solve.
     """
 
     def __init__(self, prob: Problem, noise: Noise = Noise(), time_limit: float = 0.02,
@@ -69,8 +69,6 @@ class OnlineEstimator:
         except ValueError as exc:
             return self._failed(f"bad value: {exc}")
         drive = prob.drive(T, y[list(prob.measured)])
-        if not self._square:
-            return self._least_squares(displacements, tensions)
         model = prob.model
         values, unknowns = model.values, prob.unknowns
         if self._carry is None:
@@ -92,17 +90,23 @@ class OnlineEstimator:
         if budget is not None and budget < 3:
             return self._failed(note, row)
         # from the straight rod, with load continuation, within the time left
-        res = solve_system(model.structure, values, prob.measured, drive, unknowns, None,
-                           budget)
-        if not bool(res.converged):
+        if self._square:
+            res = solve_system(model.structure, values, prob.measured, drive, unknowns, None,
+                               budget)
+            x, converged, evaluations = res.x, bool(res.converged), int(res.evaluations)
+        else:
+            r = estimate_problem(prob, displacements, tensions, self.noise, None,
+                                 budget=budget)
+            x, converged, evaluations = r.extra["x"], r.converged, int(r.iterations)
+        if not converged:
             return self._failed(note, row)
-        carry = self._init(res.x, drive, {}, unknowns, values)
+        carry = self._init(x, drive, {}, unknowns, values)
         carry, row2 = self._step(carry, drive, {}, unknowns, values)
         row2 = jax.device_get(row2)
         if not row2.converged:
             return self._failed(INADMISSIBLE if not row2.admissible else note, row2)
         self._carry, self._x = carry, row2.x
-        return self._estimate(row2, T, int(row.iterations + res.evaluations + row2.iterations))
+        return self._estimate(row2, T, int(row.iterations) + evaluations + int(row2.iterations))
 
     def _readings(self, displacements, tensions):
         robot = self.problem.robot
@@ -140,13 +144,3 @@ class OnlineEstimator:
         if row is None:
             return SampleEstimate.failed(self.problem, note)
         return SampleEstimate.failed(self.problem, note, row.x, int(row.iterations))
-
-    def _least_squares(self, displacements, tensions) -> SampleEstimate:
-        r = estimate_problem(self.problem, displacements, tensions, self.noise, self._x)
-        if not r.converged and self._x is not None:
-            r = estimate_problem(self.problem, displacements, tensions, self.noise, None)
-        if not r.converged:
-            return self._failed(r.extra.get("note", "did not converge"))
-        self._x = r.extra["x"]
-        return SampleEstimate(np.asarray(r.magnitudes), np.asarray(r.sigma), dict(r.markers),
-                              True, int(r.iterations), np.asarray(r.extra["x"]))

@@ -59,10 +59,11 @@ class Carry(NamedTuple):
 MAX_EVALUATIONS, MAX_JACOBIANS = 60, 6
 
 
-def _sample_fns(structure: Structure, measured: tuple[int, ...],
+def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
                 tension_columns: tuple[int, ...], refine_every: int):
     """``init(x0, d0, p0, unknowns, values) -> Carry`` and
-    ``step(carry, d, p, unknowns, values) -> (Carry, Track row)`` of the tracker (pure)."""
+    ``step(carry, d, p, unknowns, values) -> (Carry, Track row)`` of the tracker (pure):
+    quasi-Newton for a square system, Gauss–Newton SQP for least squares (n_z < n_a)."""
     num = structure.numerics
     nq = structure.nq
     tcols = np.array(tension_columns, int)
@@ -160,16 +161,98 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...],
             return jnp.where(ok_m, Hn, H)
 
         H = jax.lax.cond(carry.count % refine_every == 0, refine, lambda H: H, st["H"])
-        v = -H @ Rm
+        return finish(carry, d, values, x, ok, fine, H, -H @ Rm, st["evals"], st["jacs"])
+
+    def finish(carry, d, values, x, ok, fine, H, dx_dm, evals, jacs):
         grid, g = grid_poses(values, x[:nq], points_at(structure, values, values.marker_X))
         markers = positions(Frames(g, None), values.marker_offsets)
         y = tendons.length_changes(structure, values, Frames(grid, None))
         # a failed sample leaves the carry as it was: the next one starts from the last good
-        new = Carry(x, H, v, measurements(d), ok, carry.count + 1)
+        new = Carry(x, H, dx_dm, measurements(d), ok, carry.count + 1)
         keep = carry._replace(count=carry.count + 1)
         out = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, keep)
-        return out, Track(x, ok, st["evals"], st["jacs"], v, markers, y, fine)
+        return out, Track(x, ok, evals, jacs, dx_dm, markers, y, fine)
 
+    def linear(x, d, unknowns, vs):  # (J, r, load size, ∂r/∂T)
+        J, (r, s, rT) = jax.jacfwd(lambda x: (f(x, d, unknowns, vs)[0], f(x, d, unknowns, vs)),
+                                   has_aux=True)(x)
+        return J, r, s, rT
+
+    def kkt(J):
+        """eq. 17 linearised: min ‖r_y + C dx‖² subject to r_E + A dx = 0, J = [A; C], as the
+        system [[CᵀC, Aᵀ], [A, 0]] [dx; λ]."""
+        A, C = J[:nq], J[nq:]
+        return jnp.block([[C.T @ C, A.T], [A, jnp.zeros((nq, nq))]])
+
+    def gauss_newton(J, r):
+        A, C = J[:nq], J[nq:]
+        rhs = jnp.concatenate([-C.T @ r[nq:], -r[:nq]])
+        return jnp.linalg.solve(kkt(J), rhs)[:nq + n_z]
+
+    def init_ls(x0, d0, p0, unknowns, values):
+        m0 = measurements(d0)
+        n = nq + n_z
+        return Carry(x0, jnp.zeros((n, n)), jnp.zeros((n, m0.size)), m0, jnp.asarray(False),
+                     jnp.asarray(0))
+
+    def step_ls(carry: Carry, d, p, unknowns, values):
+        vs = at(values, p)
+        floor = vs[0].energy_floor * jnp.sqrt(vs[0].young_modulus)
+        guess = carry.x + jnp.where(carry.ok, carry.dx_dm @ (measurements(d) - carry.measurements),
+                                    0.0)
+
+        def merit(r):  # equilibrium weighted above the lengths: the SQP step descends on it
+            m = 0.5 * (10.0 * jnp.dot(r[:nq], r[:nq]) + jnp.dot(r[nq:], r[nq:]))
+            return jnp.where(jnp.isfinite(m), m, jnp.inf)
+
+        def stationary(x, r, s, dx):
+            # equilibrium holds and the Gauss–Newton step in z is below its resolution, or
+            # the lengths are met exactly
+            small = num.tolerance * (s + floor)
+            z = x[nq:]
+            return (jnp.linalg.norm(r[:nq]) <= small) & (
+                (jnp.linalg.norm(dx[nq:]) <= 1e-8 * (jnp.linalg.norm(z) + 1e-6))
+                | (jnp.linalg.norm(r[nq:]) <= small))
+
+        J, r, s, rT = linear(guess, d, unknowns, vs)
+        dx = gauss_newton(J, r)
+        st = dict(x=guess, J=J, r=r, s=s, rT=rT, dx=dx, alpha=jnp.asarray(1.0),
+                  evals=jnp.asarray(1), jacs=jnp.asarray(1),
+                  status=jnp.where(stationary(guess, r, s, dx), 1, 0))
+
+        def cond(st):
+            return (st["status"] == 0) & (st["evals"] < MAX_EVALUATIONS) & (
+                st["jacs"] < 2 * MAX_JACOBIANS)
+
+        def body(st):
+            xt = st["x"] + st["alpha"] * st["dx"]
+            Jt, rt, ts, rTt = linear(xt, d, unknowns, vs)
+            accept = merit(rt) <= (1 - 1e-4 * st["alpha"]) * merit(st["r"])
+            dxt = gauss_newton(Jt, rt)
+            new = dict(x=xt, J=Jt, r=rt, s=ts, rT=rTt, dx=dxt, alpha=jnp.asarray(1.0),
+                       status=jnp.where(stationary(xt, rt, ts, dxt), 1, 0))
+            old = dict(st, alpha=st["alpha"] / 2,
+                       status=jnp.where(st["alpha"] < 2.0**-20, 2, 0))
+            out = jax.tree_util.tree_map(lambda a, b: jnp.where(accept, a, b), new,
+                                         {k: old[k] for k in new})
+            return dict(out, evals=st["evals"] + 1, jacs=st["jacs"] + 1)
+
+        st = jax.lax.while_loop(cond, body, st)
+        x = st["x"]
+        fine = admissible(vs[0], x[:nq])
+        ok = (st["status"] == 1) & fine
+        # Gauss–Newton sensitivity to the measurements [y_meas; T] (as the uncertainty of
+        # eq. 17 in :mod:`tendonsense.estimation`): the same KKT system, right-hand side R_m
+        Ry = jnp.zeros((x.size - n_z + sel.size, sel.size)).at[
+            nq + jnp.arange(sel.size), jnp.arange(sel.size)].set(-vs[1].root_k)
+        Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)
+        C = st["J"][nq:]
+        rhs = jnp.concatenate([-C.T @ Rm[nq:], -Rm[:nq]])
+        dx_dm = jnp.linalg.solve(kkt(st["J"]), rhs)[:nq + n_z]
+        return finish(carry, d, values, x, ok, fine, carry.H, dx_dm, st["evals"], st["jacs"])
+
+    if len(measured) > n_z:
+        return init_ls, step_ls
     return init, step
 
 
@@ -177,11 +260,11 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...],
 def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
             tension_columns: tuple[int, ...], refine_every: int = 1):
     """Compiled ``track(x0, drives, unknowns, values, varied) -> Track`` for a square system
-    (``len(measured) == n_z``); ``drives`` is a :class:`Drive` and ``varied`` a dict of values
+    (``len(measured) == n_z``) or least squares (more measured tendons); ``drives`` is a :class:`Drive` and ``varied`` a dict of values
     by name (:data:`~tendonsense.model.VALUE_NAMES`, may be empty), both with a leading sample
     axis. The sensitivity columns are the measured lengths, then the tensions of the tendons
     ``tension_columns``."""
-    init, step = _sample_fns(structure, measured, tension_columns, refine_every)
+    init, step = _sample_fns(structure, measured, n_z, tension_columns, refine_every)
 
     def track(x0, drives, unknowns, values, varied):
         d0, p0 = jax.tree_util.tree_map(lambda a: a[0], (drives, varied))
@@ -198,7 +281,7 @@ def stepper(structure: Structure, measured: tuple[int, ...], n_z: int,
             tension_columns: tuple[int, ...], refine_every: int = 1):
     """The tracker one sample at a time: compiled ``init(x0, d0, p0, unknowns, values)`` and
     ``step(carry, d, p, unknowns, values) -> (carry, Track row)``."""
-    init, step = _sample_fns(structure, measured, tension_columns, refine_every)
+    init, step = _sample_fns(structure, measured, n_z, tension_columns, refine_every)
     return jax.jit(init), jax.jit(step)
 
 
@@ -243,24 +326,33 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
                     chunk: int = 100, progress=None) -> list[SampleEstimate]:
     """Estimate a time series of readings, each sample warm-started from the previous one.
 
-    Square problems take the compiled tracker in chunks of ``chunk`` samples; a sample it
-    cannot converge is solved again on its own from the straight rod (load continuation), and
-    least-squares problems go sample by sample. ``progress(done, total)`` is called per chunk.
-    """
+    The compiled tracker takes them in chunks of ``chunk`` samples (quasi-Newton for square
+    problems, Gauss–Newton SQP for least squares); a sample it cannot converge is solved again
+    on its own from the straight rod (load continuation, a bounded budget once an earlier
+    sample has converged); a bad reading (non-finite, negative tension, a tendon pulled in
+    beyond its length) is marked with the reason. ``progress(done, total)`` is called per
+    chunk."""
     robot, model = prob.robot, prob.model
     n = len(displacements)
-    T = np.array([tendon_vector(robot, t, "tension") for t in tensions]).reshape(n, -1)
-    Y = np.array([tendon_vector(robot, y, "displacement") for y in displacements]).reshape(n, -1)
-    if len(prob.measured) != prob.n_z:
-        return _one_by_one(prob, displacements, tensions, noise, progress)
+    for what, readings in (("tension", tensions), ("displacement", displacements)):
+        for name in {name for r in readings for name in r}:
+            if name not in robot.tendon_names:
+                raise ValueError(f"{what} {name}: no such tendon (robot has "
+                                 f"{', '.join(robot.tendon_names)})")
+    T, Y = np.zeros((n, len(robot.tendons))), np.zeros((n, len(robot.tendons)))
+    out: list[SampleEstimate | None] = [None] * n
+    for k in range(n):
+        try:
+            T[k] = tendon_vector(robot, tensions[k], "tension")
+            Y[k] = tendon_vector(robot, displacements[k], "displacement")
+            error = prob.reading_error(T[k], Y[k])
+        except ValueError as exc:  # a non-finite reading
+            T[k], Y[k], error = 0.0, 0.0, str(exc)
+        if error:
+            out[k] = SampleEstimate.failed(prob, f"bad value: {error}")
     tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.any(T != 0, axis=0)))))
     track = tracker(model.structure, prob.measured, prob.n_z, tcols, 4)
     meas = list(prob.measured)
-    out: list[SampleEstimate | None] = [None] * n
-    for k in range(n):
-        error = prob.reading_error(T[k], Y[k])
-        if error:
-            out[k] = SampleEstimate.failed(prob, f"bad value: {error}")
     valid = [k for k in range(n) if out[k] is None]
     x0, seen_good = None, False
     for start in range(0, len(valid), chunk):
@@ -298,27 +390,6 @@ def _from_result(r) -> SampleEstimate:
     note = "" if r.converged else r.extra.get("note", "did not converge")
     return SampleEstimate(np.asarray(r.magnitudes), np.asarray(r.sigma), dict(r.markers),
                           bool(r.converged), int(r.iterations), np.asarray(r.extra["x"]), note)
-
-
-def _one_by_one(prob, displacements, tensions, noise, progress):
-    out, x0 = [], None
-    robot = prob.robot
-    for k, (y, t) in enumerate(zip(displacements, tensions)):
-        error = prob.reading_error(tendon_vector(robot, t, "tension"),
-                                   tendon_vector(robot, y, "displacement"))
-        if error:
-            out.append(SampleEstimate.failed(prob, f"bad value: {error}"))
-            continue
-        r = estimate_problem(prob, y, t, noise, x0)
-        if not r.converged:  # a bad warm start must not spoil the sample
-            r = estimate_problem(prob, y, t, noise, None,
-                                 budget=None if x0 is None else RESCUE_BUDGET)
-        if r.converged:
-            x0 = r.extra["x"]
-        out.append(_from_result(r))
-        if progress:
-            progress(k + 1, len(displacements))
-    return out
 
 
 def _principal_order(m: np.ndarray) -> np.ndarray:
