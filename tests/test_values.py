@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tendonsense import statics
+from tendonsense import estimation, statics
 from tendonsense.estimation import PointForceUnknown, estimate, problem
 from tendonsense.forward import model_for, solution_derivatives, solve
 from tendonsense.tracking import solve_batch
@@ -35,6 +35,10 @@ def variant(robot, rng):
 def test_no_new_programs_for_new_values_or_load_positions(prototype, monkeypatch):
     """Tracing runs the Python of ``terms``; it must not run again for 20 robots with other
     numbers and 20 other load positions (forward statics, forward kinematics, estimation)."""
+    # plain jit (no programs loaded from disk), from fresh caches, so that every trace shows
+    monkeypatch.setenv("TENDONSENSE_CACHE_DIR", "")
+    for factory in (statics.newton_solver, statics._outputs_fn, estimation._jacobians_fn):
+        factory.cache_clear()
     calls = []
     original = statics.terms
     monkeypatch.setattr(statics, "terms", lambda *a, **k: calls.append(1) or original(*a, **k))

@@ -17,12 +17,11 @@ jax.config.update("jax_platforms", "cpu")
 def _enable_compilation_cache():
     """Keep compiled solvers on disk between runs (``TENDONSENSE_CACHE_DIR``, default
     ``~/.cache/tendonsense``; set it to an empty string to switch the cache off)."""
-    path = os.environ.get("TENDONSENSE_CACHE_DIR")
-    if path is None:
-        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-        path = os.path.join(base, "tendonsense", "xla")
-    if not path:
+    from .compiled import cache_dir
+    root = cache_dir()
+    if root is None:
         return
+    path = os.path.join(root, "xla")
     try:
         os.makedirs(path, exist_ok=True)
     except OSError:

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .compiled import Program
 from .forward import check_point_forces, finite, make_result, model_for, tendon_vector
 from .model import Model, Structure, Values
 from .result import Result
@@ -150,7 +151,7 @@ def _jacobians_fn(structure: Structure, measured: tuple[int, ...]):
                                                                      values)
         return Eq, Ez, ET, yq
 
-    return jax.jit(jac)
+    return Program(jac, "jacobians", (structure, measured))
 
 
 def reduced_jacobians(prob: Problem, x, drive, values: Values):

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import loads, tendons
+from .compiled import Program
 from .kinematics import Frames, grid_frames, positions
 from .model import VALUE_NAMES, Structure, Values, points_at
 
@@ -209,7 +210,7 @@ def newton_solver(structure: Structure, measured: tuple[int, ...], n_z: int):
         return NewtonResult(st["x"], st["status"] == 1, st["total"],
                             jnp.linalg.norm(st["r"]) / (st["load"] + floor), st["evals"])
 
-    return jax.jit(solve)
+    return Program(solve, "newton", (structure, measured, n_z))
 
 
 def solve_system(structure: Structure, values: Values, measured: tuple[int, ...],
@@ -250,13 +251,13 @@ def _outputs_fn(structure: Structure):
         return (positions(mk, values.marker_offsets), positions(bb),
                 tendons.length_changes(structure, values, grid), admissible(values, q))
 
-    return jax.jit(out)
+    return Program(out, "outputs", structure)
 
 
 def shape_outputs(structure: Structure, values: Values, q):
     """Marker positions (n_m, 3), backbone (101, 3), tendon length changes and whether the
     strain is :func:`admissible` at q."""
-    return tuple(np.asarray(a) for a in _outputs_fn(structure)(values, jnp.asarray(q)))
+    return tuple(np.asarray(a) for a in _outputs_fn(structure)(values, np.asarray(q, float)))
 
 
 def marker_positions(structure: Structure, values: Values, q):

@@ -1,0 +1,112 @@
+"""Compiled programs kept between runs: a program is traced once per robot structure and
+argument shapes, serialised (``jax.export``) into the cache directory, and later processes
+load it instead of tracing it again; the XLA compilation cache (see ``__init__``) then
+supplies the machine code. A cached program is keyed by its name, the structure, the
+argument shapes and a hash of this package's source and of the JAX version, so that an edited
+model never runs a stale program. Without a cache directory, or if serialisation is not
+available, it is plain :func:`jax.jit`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from functools import lru_cache
+from pathlib import Path
+
+import jax
+import numpy as np
+
+
+def cache_dir() -> Path | None:
+    """``TENDONSENSE_CACHE_DIR`` (an empty value: no cache), else ``~/.cache/tendonsense``."""
+    path = os.environ.get("TENDONSENSE_CACHE_DIR")
+    if path is None:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        path = os.path.join(base, "tendonsense")
+    return Path(path) if path else None
+
+
+@lru_cache(maxsize=1)
+def _source_hash() -> str:
+    h = hashlib.sha256(jax.__version__.encode())
+    for f in sorted(Path(__file__).parent.glob("*.py")):
+        h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+@lru_cache(maxsize=1)
+def _register() -> bool:
+    """Register the project's named tuples for serialisation; False if it is unavailable."""
+    try:
+        import flatbuffers  # noqa: F401  (jax.export serialisation needs it)
+    except ImportError:
+        return False
+    from . import kinematics, model, statics, tracking
+    for mod, names in ((model, ("Values", "PointSet", "TendonGroup")),
+                       (statics, ("Drive", "Unknowns", "NewtonResult", "Scaling")),
+                       (kinematics, ("Frames",)), (tracking, ("Carry", "Track"))):
+        for name in names:
+            try:
+                jax.export.register_namedtuple_serialization(
+                    getattr(mod, name), serialized_name=f"tendonsense.{name}")
+            except ValueError:  # already registered
+                pass
+    return True
+
+
+class Program:
+    """``jax.jit(fn)`` whose traced form is kept on disk between runs (see module doc)."""
+
+    def __init__(self, fn, name: str, key):
+        self.fn, self.name, self.key = fn, name, repr(key)
+        self.jitted = jax.jit(fn)
+        self.loaded: dict[str, object] = {}
+
+    def __call__(self, *args):
+        signature = _signature(args)
+        call = self.loaded.get(signature)
+        if call is None:
+            call = self.loaded[signature] = self._load(signature, args)
+        return call(*args)
+
+    def _load(self, signature: str, args):
+        root = cache_dir()
+        if root is None or not _register():
+            return self.jitted
+        digest = hashlib.sha256(f"{self.name}|{self.key}|{signature}|{_source_hash()}"
+                                .encode()).hexdigest()[:32]
+        path = root / "programs" / f"{self.name}-{digest}.bin"
+        try:
+            exp = jax.export.deserialize(bytearray(path.read_bytes()))
+        except FileNotFoundError:
+            exp = None
+        except Exception:  # an unreadable file: trace again, and overwrite it
+            exp = None
+        if exp is None:
+            try:
+                exp = jax.export.export(self.jitted)(*args)
+                _write_atomic(path, exp.serialize())
+            except Exception:
+                return self.jitted
+        return jax.jit(exp.call)
+
+
+def _signature(args) -> str:
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    shapes = ",".join(f"{np.shape(a)}:{a.dtype if hasattr(a, 'dtype') else np.result_type(a)}"
+                      for a in leaves)
+    return f"{tree}|{shapes}"
+
+
+def _write_atomic(path: Path, data: bytes):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
