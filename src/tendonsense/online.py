@@ -14,7 +14,7 @@ import numpy as np
 from .estimation import Noise, Problem, estimate_problem
 from .forward import INADMISSIBLE
 from .statics import solve_system
-from .tracking import SampleEstimate, stepper
+from .tracking import SampleEstimate, Track, stepper, unpack_row
 
 
 class OnlineEstimator:
@@ -79,7 +79,7 @@ class OnlineEstimator:
                 jax.block_until_ready(self._init(x0, drive, {}, unknowns, values))
                 self._eval_cost = time.perf_counter() - t0
         carry, row = self._step(self._carry, drive, {}, unknowns, values)
-        row = jax.device_get(row)
+        row = self._unpack(row)
         if row.converged:
             self._carry, self._x = carry, row.x
             return self._estimate(row, T, int(row.iterations))
@@ -102,11 +102,17 @@ class OnlineEstimator:
             return self._failed(note, row)
         carry = self._init(x, drive, {}, unknowns, values)
         carry, row2 = self._step(carry, drive, {}, unknowns, values)
-        row2 = jax.device_get(row2)
+        row2 = self._unpack(row2)
         if not row2.converged:
             return self._failed(INADMISSIBLE if not row2.admissible else note, row2)
         self._carry, self._x = carry, row2.x
         return self._estimate(row2, T, int(row.iterations) + evaluations + int(row2.iterations))
+
+    def _unpack(self, flat) -> Track:
+        prob = self.problem
+        return unpack_row(np.asarray(flat), prob.model.nq + prob.n_z,
+                          len(prob.measured) + len(self._tcols), len(prob.robot.markers),
+                          prob.model.n_tendons)
 
     def _readings(self, displacements, tensions):
         robot = self.problem.robot

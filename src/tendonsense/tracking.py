@@ -280,9 +280,23 @@ def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
 def stepper(structure: Structure, measured: tuple[int, ...], n_z: int,
             tension_columns: tuple[int, ...], refine_every: int = 1):
     """The tracker one sample at a time: compiled ``init(x0, d0, p0, unknowns, values)`` and
-    ``step(carry, d, p, unknowns, values) -> (carry, Track row)``."""
+    ``step(carry, d, p, unknowns, values) -> (carry, row)``, the row packed into one vector
+    (one transfer to the host; :func:`unpack_row`)."""
     init, step = _sample_fns(structure, measured, n_z, tension_columns, refine_every)
-    return jax.jit(init), jax.jit(step)
+
+    def packed(carry, d, p, unknowns, values):
+        carry, row = step(carry, d, p, unknowns, values)
+        return carry, jnp.concatenate([jnp.ravel(a).astype(float) for a in row])
+
+    return jax.jit(init), jax.jit(packed)
+
+
+def unpack_row(flat: np.ndarray, n_x: int, n_m: int, n_markers: int, n_t: int) -> Track:
+    """A :class:`Track` row from the packed vector of :func:`stepper` (numpy)."""
+    sizes = (n_x, 1, 1, 1, n_x * n_m, 3 * n_markers, n_t, 1)
+    x, conv, its, jacs, dx_dm, markers, y, fine = np.split(flat, np.cumsum(sizes)[:-1])
+    return Track(x, bool(conv[0]), int(its[0]), int(jacs[0]), dx_dm.reshape(n_x, n_m),
+                 markers.reshape(n_markers, 3), y, bool(fine[0]))
 
 
 def stacked_drives(prob: Problem, tensions: np.ndarray, targets: np.ndarray) -> Drive:
