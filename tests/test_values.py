@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from tendonsense import estimation, statics
-from tendonsense.estimation import PointForceUnknown, estimate, problem
+from tendonsense.estimation import PointForceUnknown, estimate
 from tendonsense.forward import model_for, solution_derivatives, solve
 from tendonsense.tracking import solve_batch
 from tendonsense.robot import Marker

@@ -159,9 +159,11 @@ def newton_solver(structure: Structure, measured: tuple[int, ...], n_z: int):
         sc = scaling(values, measured)
         floor = values.energy_floor * jnp.sqrt(values.young_modulus)
 
-        def linearise(x, lam):
-            f = lambda x: residual(structure, values, measured, x, drive, unknowns, lam, sc)  # noqa: E731
-            return jax.jacfwd(lambda x: (f(x)[0], f(x)), has_aux=True)(x)
+        def linearise(x, lam):  # (J, (r, load size)), one residual evaluation
+            def with_aux(x):
+                out = residual(structure, values, measured, x, drive, unknowns, lam, sc)
+                return out[0], out
+            return jax.jacfwd(with_aux, has_aux=True)(x)
 
         def restart(st, x, lam_good, target, dlam, phase):
             return dict(st, x=x, x_good=x, lam_good=lam_good, target=target, dlam=dlam,

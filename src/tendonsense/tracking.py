@@ -173,9 +173,11 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         out = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, keep)
         return out, Track(x, ok, evals, jacs, dx_dm, markers, y, fine)
 
-    def linear(x, d, unknowns, vs):  # (J, r, load size, ∂r/∂T)
-        J, (r, s, rT) = jax.jacfwd(lambda x: (f(x, d, unknowns, vs)[0], f(x, d, unknowns, vs)),
-                                   has_aux=True)(x)
+    def linear(x, d, unknowns, vs):  # (J, r, load size, ∂r/∂T), one residual evaluation
+        def with_aux(x):
+            out = f(x, d, unknowns, vs)
+            return out[0], out
+        J, (r, s, rT) = jax.jacfwd(with_aux, has_aux=True)(x)
         return J, r, s, rT
 
     def kkt(J):
@@ -185,7 +187,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         return jnp.block([[C.T @ C, A.T], [A, jnp.zeros((nq, nq))]])
 
     def gauss_newton(J, r):
-        A, C = J[:nq], J[nq:]
+        C = J[nq:]
         rhs = jnp.concatenate([-C.T @ r[nq:], -r[:nq]])
         return jnp.linalg.solve(kkt(J), rhs)[:nq + n_z]
 
