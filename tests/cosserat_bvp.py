@@ -40,8 +40,9 @@ def rot_to_quat(R):
 class CosseratBVP:
     """The robot with tensions ``T`` (per tendon), point loads [(X, f)] and its gravity."""
 
-    def __init__(self, robot, tensions, point_forces=()):
+    def __init__(self, robot, tensions, point_forces=(), shear: bool = True):
         self.robot = robot
+        self.shear = shear  # False: shear held rigid (like a GVS basis without shear modes)
         rod = robot.rod
         self.L = rod.length
         self.E, self.G = rod.young_modulus, rod.young_modulus / (2 * (1 + rod.poisson_ratio))
@@ -73,6 +74,8 @@ class CosseratBVP:
             n_loc = np.einsum("mji,jm->im", R, n)
             m_loc = np.einsum("mji,jm->im", R, m)
             v = np.array([1.0, 0, 0])[:, None] + n_loc / np.array([self.E * A, self.G * A, self.G * A])
+            if not self.shear:
+                v[1:] = 0.0
             u = m_loc / np.array([self.G * 2 * I, self.E * I, self.E * I])
             dr = np.einsum("mij,jm->im", R, v)
             w, x, yq, z = Q / np.linalg.norm(Q, axis=0)
@@ -156,6 +159,25 @@ class CosseratBVP:
             s, y = sol.x, sol.y
         self.solution = sol
         return self
+
+    def frame(self, X):
+        """Position and rotation matrix of the cross-section at X."""
+        k = int(np.clip(np.searchsorted(self.cuts, X, side="right") - 1, 0, self.nseg - 1))
+        a, b = self.cuts[k], self.cuts[k + 1]
+        Y = self.solution.sol((X - a) / (b - a))[13 * k:13 * k + 7]
+        return Y[:3], quat_to_rot(Y[3:7, None])[0]
+
+    def tendon_length_changes(self):
+        """Every tendon's path length through its disks minus that on the straight rod."""
+        out = {}
+        for t in self.robot.tendons:
+            X = np.array(t.disks)
+            d = t.offset(X, self.L)
+            pts = np.array([p + R @ d[i] for i, (p, R) in enumerate(map(self.frame, X))])
+            straight = d + X[:, None] * np.array([1.0, 0.0, 0.0])
+            out[t.name] = float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum()
+                                - np.linalg.norm(np.diff(straight, axis=0), axis=1).sum())
+        return out
 
     def position(self, X):
         k = int(np.clip(np.searchsorted(self.cuts, X, side="right") - 1, 0, self.nseg - 1))

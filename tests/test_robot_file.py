@@ -69,3 +69,27 @@ def test_soromox_tentacle_loads_and_hangs():
     pulled = solve(robot, {"t1": 3.08})
     assert pulled.converged
     assert np.linalg.norm(pulled.markers["m4"] - tip) > 0.02
+
+
+def test_elements_in_the_strain_table(tmp_path):
+    from tendonsense.forward import model_for
+    text = PROTOTYPE.read_text()
+    assert "[strain]" in text
+    with_elements = text.replace("[strain]", '[strain]\nelements = "disks"')
+    path = tmp_path / "r.toml"
+    path.write_text(with_elements)
+    robot = load_robot(path)
+    assert robot.elements == pytest.approx(tuple(np.linspace(0, 0.25, 9)[1:-1]))
+    model = model_for(robot)
+    assert model.structure.n_elements == 8
+    assert model.nq == 8 * sum(d + 1 for _, d in robot.strain)
+    nodes = np.asarray(model.values.nodes)
+    for x in robot.elements:  # no Magnus interval straddles an element boundary
+        assert np.min(np.abs(nodes - x)) < 1e-12
+    path.write_text(robot_to_toml(robot))
+    assert load_robot(path).elements == robot.elements
+    for bad, why in (("[0.1, 0.05]", "increasing"), ("[0.0, 0.1]", "strictly inside"),
+                     ('"rings"', "disks")):
+        path.write_text(text.replace("[strain]", f"[strain]\nelements = {bad}"))
+        with pytest.raises(RobotFileError, match=why):
+            load_robot(path)

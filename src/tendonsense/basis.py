@@ -62,3 +62,35 @@ class LegendreBasis:
         cols = [[rows[mode][k] if m == mode else zero for m in MODES]
                 for mode, sl in self.blocks() for k in range(sl.stop - sl.start)]
         return xp.stack([xp.stack(c, axis=-1) for c in cols], axis=-1)
+
+
+@dataclass(frozen=True)
+class ElementsBasis:
+    """A piecewise basis: the rod split at ``bounds`` (X_0 = 0 < ... < X_m = L) into elements,
+    each with its own :class:`LegendreBasis` block per active mode in its local coordinate,
+    no continuity imposed where elements meet (the strain may jump at a disk). Coordinates are
+    ordered element by element. A point on a boundary belongs to the element after it (the
+    last point, X = L, to the last element)."""
+
+    bounds: tuple[float, ...]
+    degrees: Mapping[str, int]
+
+    @property
+    def n_elements(self) -> int:
+        return len(self.bounds) - 1
+
+    @property
+    def n(self) -> int:
+        return self.n_elements * sum(d + 1 for d in self.degrees.values())
+
+    def __call__(self, X, bounds=None, xp=np):
+        """``Φξ(X)``, shape (len(X), 6, n); with ``xp=jax.numpy``, X and ``bounds`` may be
+        traced."""
+        X = xp.atleast_1d(xp.asarray(X, dtype=float))
+        b = xp.asarray(self.bounds if bounds is None else bounds, dtype=float)
+        k = xp.clip(xp.searchsorted(b, X, side="right") - 1, 0, self.n_elements - 1)
+        a, c = b[k], b[k + 1]
+        local = LegendreBasis(1.0, self.degrees)((X - a) / (c - a), 1.0, xp)
+        one_hot = (k[:, None] == xp.arange(self.n_elements)[None, :]).astype(float)
+        blocks = one_hot[:, None, :, None] * local[:, :, None, :]
+        return blocks.reshape(X.shape[0], 6, self.n)

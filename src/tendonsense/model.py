@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .basis import LegendreBasis
+from .basis import ElementsBasis, LegendreBasis
 from .robot import Numerics, Robot
 
 _Z = np.sqrt(3.0) / 6.0  # Zannah / two-point Gauss abscissae at 1/2 -+ sqrt(3)/6
@@ -34,14 +34,18 @@ class Structure:
     groups: tuple[tuple[int, ...], ...]  # tendons with the same number of disks
     n_tendons: int
     numerics: Numerics
+    n_elements: int = 1  # 1: the paper's global basis; more: an elements basis
 
-    @property
-    def basis(self) -> LegendreBasis:
-        return LegendreBasis(1.0, dict(self.degrees))
+    def basis(self, X, values: "Values", xp=np):
+        """``Φξ(X)`` with the bounds and length of ``values`` (traceable with ``xp=jnp``)."""
+        if self.n_elements == 1:
+            return LegendreBasis(1.0, dict(self.degrees))(X, values.length, xp)
+        return ElementsBasis((0.0,) * (self.n_elements + 1), dict(self.degrees))(
+            X, values.element_bounds, xp)
 
     @property
     def nq(self) -> int:
-        return self.basis.n
+        return self.n_elements * sum(d + 1 for _, d in self.degrees)
 
 
 class PointSet(NamedTuple):
@@ -66,6 +70,7 @@ class Values(NamedTuple):
     """Every number of a discretised robot (a pytree of arrays, traced at run time)."""
 
     length: jax.Array
+    element_bounds: jax.Array  # (n_elements + 1,) from 0 to L
     nodes: jax.Array  # grid abscissae X_0 = 0 < ... < X_n = L
     Phi1: jax.Array  # (n_int, 6, nq) at each interval's first Zannah point
     Phi2: jax.Array
@@ -117,11 +122,19 @@ class Model:
     @staticmethod
     def build(robot: Robot) -> "Model":
         rod, L = robot.rod, robot.rod.length
-        basis = LegendreBasis(L, dict(robot.strain))
-        special = [0.0, L, *rod.breakpoints()]
+        bounds = (0.0, *robot.elements, L)
+        if robot.elements:
+            basis = ElementsBasis(bounds, dict(robot.strain))
+            uniform = np.unique(np.concatenate([
+                np.linspace(a, b, robot.numerics.steps_per_element + 1)
+                for a, b in zip(bounds, bounds[1:])]))
+        else:
+            basis = LegendreBasis(L, dict(robot.strain))
+            uniform = np.linspace(0.0, L, robot.numerics.intervals + 1)
+        special = [0.0, L, *rod.breakpoints(), *robot.elements]
         for t in robot.tendons:
             special += list(t.disks)
-        nodes = _grid(L, robot.numerics.intervals, np.array(special, float))
+        nodes = _grid(L, uniform, np.array(special, float))
         h = np.diff(nodes)
         z1, z2 = nodes[:-1] + (0.5 - _Z) * h, nodes[:-1] + (0.5 + _Z) * h
 
@@ -166,7 +179,8 @@ class Model:
         base[:3, 3] = robot.base_position
         r0 = rod.radius_knots[0][1]
         values = Values(
-            length=np.float64(L), nodes=nodes, Phi1=basis(z1), Phi2=basis(z2),
+            length=np.float64(L), element_bounds=np.array(bounds, float), nodes=nodes,
+            Phi1=basis(z1), Phi2=basis(z2),
             radius_z=np.stack([rod.radius(z1), rod.radius(z2)], axis=1),
             K_axial=K_axial, K_shear=K_shear, stretch_unit=b, gravity_points=gp,
             gravity_weights=gw, tendons=tuple(tendon_values),
@@ -177,7 +191,7 @@ class Model:
             friction=np.array([t.friction for t in robot.tendons], float).reshape(-1),
             energy_floor=np.float64(1e-6 * np.sqrt(r0**4 / L)))
         structure = Structure(tuple(robot.strain), tuple(groups), len(robot.tendons),
-                              robot.numerics)
+                              robot.numerics, len(bounds) - 1)
         return Model(robot, structure, values)
 
     def with_values(self, **changes) -> "Model":
@@ -202,20 +216,20 @@ def points_at(structure: Structure, values: Values, X) -> PointSet:
     start = jnp.clip(jnp.searchsorted(nodes, X, side="right") - 1, 0, n_int - 1)
     x0 = nodes[start]
     h = X - x0
-    basis = structure.basis
-    return PointSet(start, h, basis(x0 + (0.5 - _Z) * h, values.length, jnp),
-                    basis(x0 + (0.5 + _Z) * h, values.length, jnp))
+    return PointSet(start, h, structure.basis(x0 + (0.5 - _Z) * h, values, jnp),
+                    structure.basis(x0 + (0.5 + _Z) * h, values, jnp))
 
 
-def _grid(L: float, n: int, special: np.ndarray) -> np.ndarray:
-    """Uniform grid of n intervals with every special point inserted; uniform points closer
-    than a fifth of an interval to a special point give way to it."""
+def _grid(L: float, uniform: np.ndarray, special: np.ndarray) -> np.ndarray:
+    """The ``uniform`` grid with every special point inserted; uniform points closer than a
+    fifth of their local spacing to a special point give way to it."""
     special = np.unique(np.clip(special, 0.0, L))
     # special points closer than 1e-9 L are one node
     keep = np.concatenate([[True], np.diff(special) > 1e-9 * L])
     special = special[keep]
-    uniform = np.linspace(0.0, L, n + 1)
+    spacing = np.diff(uniform)
+    local = np.minimum(np.r_[spacing[0], spacing], np.r_[spacing, spacing[-1]])
     d = np.min(np.abs(uniform[:, None] - special[None, :]), axis=1)
-    nodes = np.unique(np.concatenate([special, uniform[d > 0.2 * L / n]]))
+    nodes = np.unique(np.concatenate([special, uniform[d > 0.2 * local]]))
     nodes[0], nodes[-1] = 0.0, L
     return nodes

@@ -57,6 +57,7 @@ class Numerics:
     intervals: int = 16  # uniform Magnus intervals before disks/markers/loads are merged in
     tolerance: float = 1e-10  # relative residual at convergence
     max_iterations: int = 60
+    steps_per_element: int = 4  # uniform Magnus intervals per element of an elements basis
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,7 @@ class Robot:
     tendons: tuple[Tendon, ...] = ()
     markers: tuple[Marker, ...] = ()
     numerics: Numerics = Numerics()
+    elements: tuple[float, ...] = ()  # interior element bounds; empty: the global basis
 
     @property
     def tendon_names(self) -> tuple[str, ...]:
@@ -197,12 +199,14 @@ def parse_robot(data: dict, source: str = "robot", default_name: str = "robot") 
     L = rod.length
 
     strain = dict(DEFAULT_DEGREES)
+    elements_raw = None
     if top.has("strain"):
         s = _Reader(data["strain"], "strain", source)
-        s.check_keys(MODES)
+        s.check_keys((*MODES, "elements"))
         strain = {m: s.integer(m, high=20) for m in MODES if s.has(m)}
         if not strain:
             s.fail("", "must name at least one strain mode")
+        elements_raw = s.table.get("elements")
 
     gravity = (0.0, 0.0, -9.81)
     if top.has("gravity"):
@@ -247,15 +251,39 @@ def parse_robot(data: dict, source: str = "robot", default_name: str = "robot") 
     numerics = Numerics()
     if top.has("solver"):
         s = _Reader(data["solver"], "solver", source)
-        s.check_keys(("intervals", "tolerance", "max_iterations"))
+        s.check_keys(("intervals", "tolerance", "max_iterations", "steps_per_element"))
         numerics = Numerics(
             intervals=s.integer("intervals", default=numerics.intervals, low=2, high=1000),
             tolerance=s.number("tolerance", default=numerics.tolerance, low=0.0, high=1e-3,
                                low_open=True),
             max_iterations=s.integer("max_iterations", default=numerics.max_iterations, low=1,
-                                     high=10000))
+                                     high=10000),
+            steps_per_element=s.integer("steps_per_element",
+                                        default=numerics.steps_per_element, low=1, high=100))
+    elements = ()
+    if elements_raw is not None:
+        elements = _parse_elements(_Reader(data["strain"], "strain", source), elements_raw, L,
+                                   tendons)
     return Robot(name, rod, tuple(strain.items()), gravity, base_position, base_rotation, tuple(tendons),
-                 tuple(markers), numerics)
+                 tuple(markers), numerics, elements)
+
+
+def _parse_elements(r: _Reader, raw, L: float, tendons) -> tuple[float, ...]:
+    """``elements = "disks"`` (between consecutive disks of any tendon) or a list of X strictly
+    inside (0, L): the interior element bounds."""
+    if raw == "disks":
+        inner = sorted({x for t in tendons for x in t.disks if 1e-9 * L < x < L * (1 - 1e-9)})
+        if not inner:
+            r.fail("elements", '"disks": no disk lies strictly inside the rod')
+        return tuple(inner)
+    if not isinstance(raw, list) or not raw:
+        r.fail("elements", f'must be "disks" or a list of X inside (0, {L:g}), got {raw!r}')
+    X = tuple(r._number("elements", x) for x in raw)
+    if any(not 0.0 < x < L for x in X):
+        r.fail("elements", f"every element bound must lie strictly inside (0, {L:g})")
+    if any(b <= a for a, b in zip(X, X[1:])):
+        r.fail("elements", "element bounds must be strictly increasing")
+    return X
 
 
 def _unique(names, what, reader):
@@ -341,12 +369,15 @@ def robot_to_toml(robot: Robot) -> str:
     lines += [f"young_modulus = {f(rod.young_modulus)}", f"poisson_ratio = {f(rod.poisson_ratio)}",
               f"density = {f(rod.density)}", "", "[strain]"]
     lines += [f"{m} = {d}" for m, d in robot.strain]
+    if robot.elements:
+        lines.append(f"elements = {_vec(robot.elements)}")
     lines += ["", "[gravity]", f"acceleration = {_vec(robot.gravity)}", "", "[base]",
               f"position = {_vec(robot.base_position)}",
               "rotation = [" + ", ".join(_vec(r) for r in robot.base_rotation) + "]", "",
               "[solver]", f"intervals = {robot.numerics.intervals}",
               f"tolerance = {f(robot.numerics.tolerance)}",
-              f"max_iterations = {robot.numerics.max_iterations}"]
+              f"max_iterations = {robot.numerics.max_iterations}",
+              f"steps_per_element = {robot.numerics.steps_per_element}"]
     for t in robot.tendons:
         lines += ["", "[[tendon]]", f"name = {_q(t.name)}", f"offset_base = {_vec(t.offset_base)}",
                   f"offset_tip = {_vec(t.offset_tip)}", f"friction = {f(t.friction)}",
