@@ -88,3 +88,19 @@ def test_least_squares_fast_path_matches_plain_path_on_noisy_readings(prototype)
         assert plain.extra["length_misfit"] > 1e-5  # really inconsistent
         np.testing.assert_allclose(fast[k].magnitudes, plain.magnitudes, rtol=1e-6)
         np.testing.assert_allclose(fast[k].sigma, plain.sigma, rtol=1e-3)
+
+
+def test_batch_estimation_over_values(log, prototype):
+    """A Monte Carlo over friction: every sample with its own μ matches the plain path with
+    that μ."""
+    from tendonsense.tracking import estimate_batch
+    prob, F, disp, ten = log
+    mu = np.linspace(0.2, 0.6, len(F))
+    out = estimate_batch(prob, disp, ten, values={"friction": mu})
+    for k in (0, 11, 29):
+        plain = estimate_problem(prob, disp[k], ten[k],
+                                 values=prob.model.with_values(friction=mu[k]).values)
+        assert out[k].converged and plain.converged
+        np.testing.assert_allclose(out[k].magnitudes, plain.magnitudes, rtol=1e-8)
+    nominal = estimate_problem(prob, disp[0], ten[0])  # the file's μ = 0.4, not 0.2
+    assert abs(out[0].magnitudes[0] - nominal.magnitudes[0]) > 1e-4

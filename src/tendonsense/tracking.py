@@ -339,8 +339,11 @@ RESCUE_BUDGET = 12
 
 def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
                     tensions: Sequence[Mapping[str, float]], noise: Noise = Noise(),
-                    chunk: int = 100, progress=None) -> list[SampleEstimate]:
-    """Estimate a time series of readings, each sample warm-started from the previous one.
+                    chunk: int = 100, progress=None,
+                    values: Mapping[str, object] | None = None) -> list[SampleEstimate]:
+    """Estimate a time series of readings, each sample warm-started from the previous one;
+    ``values`` ({name: (N,)}, as for :func:`solve_batch`) gives each sample its own E, ν, ρ
+    or μ (e.g. a Monte Carlo over friction).
 
     The compiled tracker takes them in chunks of ``chunk`` samples (quasi-Newton for square
     problems, Gauss–Newton SQP for least squares); a sample it cannot converge is solved again
@@ -355,6 +358,7 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
             if name not in robot.tendon_names:
                 raise ValueError(f"{what} {name}: no such tendon (robot has "
                                  f"{', '.join(robot.tendon_names)})")
+    varied = _varied_values(model.values, values, n)
     T, Y = np.zeros((n, len(robot.tendons))), np.zeros((n, len(robot.tendons)))
     out: list[SampleEstimate | None] = [None] * n
     for k in range(n):
@@ -378,7 +382,8 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
         # a fixed scan length (padded with the last sample) keeps one compiled tracker
         rows = list(idx) + [idx[-1]] * (chunk - len(idx))
         drives = stacked_drives(prob, T[rows], Y[rows][:, meas])
-        tr = jax.device_get(track(jnp.asarray(x0), drives, prob.unknowns, model.values, {}))
+        tr = jax.device_get(track(jnp.asarray(x0), drives, prob.unknowns, model.values,
+                                  {name: jnp.asarray(v[rows]) for name, v in varied.items()}))
         for j, k in enumerate(idx):
             if tr.converged[j]:
                 dz = tr.dx_dm[j, model.nq:, :]
@@ -391,6 +396,7 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
             else:
                 out[k] = _from_result(estimate_problem(
                     prob, displacements[k], tensions[k], noise,
+                    values=model.values._replace(**{name: v[k] for name, v in varied.items()}),
                     budget=RESCUE_BUDGET if seen_good else None))
             seen_good = seen_good or out[k].converged
         good = [out[k].x for k in idx if out[k].converged]
@@ -419,8 +425,10 @@ def _principal_order(m: np.ndarray) -> np.ndarray:
 
 def estimate_batch(prob: Problem, displacements: Sequence[Mapping[str, float]],
                    tensions: Sequence[Mapping[str, float]], noise: Noise = Noise(),
-                   workers: int = 2, progress=None) -> list[SampleEstimate]:
-    """Estimate independent readings, returned in the input order.
+                   workers: int = 2, progress=None,
+                   values: Mapping[str, object] | None = None) -> list[SampleEstimate]:
+    """Estimate independent readings, returned in the input order; ``values`` gives each
+    its own E, ν, ρ or μ ({name: (N,)}, as for :func:`solve_batch`).
 
     The readings are ordered along their first principal direction so that neighbours
     warm-start each other, cut into ``workers`` runs, and the runs are solved concurrently
@@ -429,9 +437,11 @@ def estimate_batch(prob: Problem, displacements: Sequence[Mapping[str, float]],
     from concurrent.futures import ThreadPoolExecutor
     robot = prob.robot
     n = len(displacements)
+    varied = _varied_values(prob.model.values, values, n)
     m = np.array([np.concatenate([tendon_vector(robot, y, "displacement"),
                                   tendon_vector(robot, t, "tension")])
                   for y, t in zip(displacements, tensions)]).reshape(n, -1)
+    m = np.concatenate([m, *(v.reshape(n, -1) for v in varied.values())], axis=1)
     runs = [r for r in np.array_split(_principal_order(m), max(1, workers)) if r.size]
     done = [0] * len(runs)
 
@@ -441,7 +451,8 @@ def estimate_batch(prob: Problem, displacements: Sequence[Mapping[str, float]],
             if progress:
                 progress(sum(done), n)
         return estimate_series(prob, [displacements[k] for k in runs[i]],
-                               [tensions[k] for k in runs[i]], noise, progress=tick)
+                               [tensions[k] for k in runs[i]], noise, progress=tick,
+                               values={name: v[runs[i]] for name, v in varied.items()})
 
     with ThreadPoolExecutor(len(runs)) as pool:
         solved = list(pool.map(solve_run, range(len(runs))))
@@ -556,6 +567,12 @@ def _batch_inputs(robot: Robot, base, tensions, point_forces, values):
         raise ValueError("batch: a tension is negative (a tendon cannot push)")
     if np.any((X < 0) | (X > robot.rod.length)):
         raise ValueError(f"batch: a point force X is outside the rod [0, {robot.rod.length:g}]")
+    return T, X, F, _varied_values(base, values, n)
+
+
+def _varied_values(base, values, n: int) -> dict[str, np.ndarray]:
+    """Per-sample values {name: (n, ...)}, validated: a name of :data:`VALUE_NAMES`, finite;
+    ``friction`` (n,) is one μ for every tendon, (n, n_t) one per tendon."""
     varied = {}
     for k, val in (values or {}).items():
         if k not in VALUE_NAMES:
@@ -564,7 +581,11 @@ def _batch_inputs(robot: Robot, base, tensions, point_forces, values):
         a = np.asarray(val, float)
         if k == "friction" and a.ndim <= 1:  # one μ for every tendon
             a = a.reshape(-1, 1)
-        varied[k] = np.broadcast_to(a, (n, *np.shape(getattr(base, k))))
+        try:
+            varied[k] = np.broadcast_to(a, (n, *np.shape(getattr(base, k))))
+        except ValueError:
+            raise ValueError(f"batch: {k} has shape {np.shape(val)}, not one value per "
+                             f"sample ({n})") from None
         if not np.all(np.isfinite(varied[k])):
             raise ValueError(f"batch: {k} must be finite")
-    return T, X, F, varied
+    return varied
