@@ -11,7 +11,7 @@ equilibrium as an exact constraint (implicit differentiation, no finite differen
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from typing import Mapping, Sequence
 
 import jax
@@ -76,13 +76,19 @@ class Problem:
     def n_z(self) -> int:
         return self.unknowns.gravity.shape[0]
 
+    @cached_property
+    def rest_lengths(self) -> np.ndarray:
+        """Every tendon's path length on the straight rod (l* of eq. 9), m."""
+        rest = np.zeros(len(self.robot.tendons))
+        for idx, grp in zip(self.model.structure.groups, self.model.values.tendons):
+            rest[list(idx)] = np.asarray(grp.rest_length)
+        return rest
+
     def reading_error(self, T: np.ndarray, y: np.ndarray) -> str | None:
         """Why readings (tensions T, length changes y; per tendon) are physically impossible,
         or None: a negative tension (a tendon cannot push) or a tendon pulled in by more than
         its length."""
-        rest = np.zeros(len(self.robot.tendons))
-        for idx, grp in zip(self.model.structure.groups, self.model.values.tendons):
-            rest[list(idx)] = np.asarray(grp.rest_length)
+        rest = self.rest_lengths
         for j, name in enumerate(self.robot.tendon_names):
             if T[j] < 0:
                 return f"tension {name} = {T[j]:g} N is negative (a tendon cannot push)"

@@ -4,7 +4,6 @@ of work, warm-started from the last good sample (eq. 17 on the fast path of
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Mapping
 
@@ -12,9 +11,9 @@ import jax
 import numpy as np
 
 from .estimation import Noise, Problem, estimate_problem
-from .forward import INADMISSIBLE
+from .forward import INADMISSIBLE, tendon_vector
 from .statics import solve_system
-from .tracking import SampleEstimate, Track, stepper, unpack_row
+from .tracking import SampleEstimate, Track, band, stepper, unpack_row
 
 
 class OnlineEstimator:
@@ -117,15 +116,8 @@ class OnlineEstimator:
     def _readings(self, displacements, tensions):
         robot = self.problem.robot
         names = robot.tendon_names
-        T, y = np.zeros(len(names)), np.zeros(len(names))
-        for what, given, out in (("tension", tensions, T), ("displacement", displacements, y)):
-            for name, v in given.items():
-                if name not in names:
-                    raise ValueError(f"{what} {name}: no such tendon")
-                v = float(v)
-                if not math.isfinite(v):
-                    raise ValueError(f"{what} {name} is not a finite number")
-                out[names.index(name)] = v
+        T = tendon_vector(robot, tensions, "tension")
+        y = tendon_vector(robot, displacements, "displacement")
         for j in self.problem.measured:
             if names[j] not in displacements or names[j] not in tensions:
                 raise ValueError(f"tendon {names[j]} is measured: it needs a displacement and "
@@ -138,10 +130,7 @@ class OnlineEstimator:
     def _estimate(self, row, T, iterations) -> SampleEstimate:
         prob, noise = self.problem, self.noise
         nq = prob.model.nq
-        dz = row.dx_dm[nq:, :]
-        scale = np.concatenate([np.full(len(prob.measured), noise.length),
-                                noise.tension * np.abs(T[list(self._tcols)])])
-        sigma = np.sqrt(((dz * scale) ** 2).sum(axis=1))
+        sigma = band(row.dx_dm[nq:, :], len(prob.measured), T[list(self._tcols)], noise)
         return SampleEstimate(row.x[nq:], sigma,
                               dict(zip(prob.robot.marker_names, row.markers)), True, iterations,
                               row.x)

@@ -386,10 +386,7 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
                                   {name: jnp.asarray(v[rows]) for name, v in varied.items()}))
         for j, k in enumerate(idx):
             if tr.converged[j]:
-                dz = tr.dx_dm[j, model.nq:, :]
-                scale = np.concatenate([np.full(len(meas), noise.length),
-                                        noise.tension * np.abs(T[k, list(tcols)])])
-                sigma = np.sqrt(((dz * scale) ** 2).sum(axis=1))
+                sigma = band(tr.dx_dm[j, model.nq:, :], len(meas), T[k, list(tcols)], noise)
                 out[k] = SampleEstimate(
                     tr.x[j, model.nq:], sigma, dict(zip(robot.marker_names, tr.markers[j])),
                     True, int(tr.iterations[j]), tr.x[j])
@@ -406,6 +403,14 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
     if progress and not valid:
         progress(n, n)
     return out
+
+
+def band(dz_dm: np.ndarray, n_lengths: int, tensions: np.ndarray, noise: Noise) -> np.ndarray:
+    """1-σ band of the magnitudes from their sensitivity ``dz_dm`` to [lengths; tensions]
+    (first-order propagation of the sensor noise, as in :mod:`tendonsense.estimation`)."""
+    scale = np.concatenate([np.full(n_lengths, noise.length),
+                            noise.tension * np.abs(tensions)])
+    return np.sqrt(((dz_dm * scale) ** 2).sum(axis=1))
 
 
 def _from_result(r) -> SampleEstimate:
