@@ -10,7 +10,7 @@ from conftest import robot_from, uniform_rod
 from tendonsense.robot import load_robot
 from tendonsense.forward import solve, model_for
 from tendonsense import tendons
-from tendonsense.kinematics import grid_frames
+from tendonsense.kinematics import poses
 from cosserat_bvp import CosseratBVP
 from test_cosserat_reference import CASES, RICH
 r, L, E, F = 0.01, 0.25, 1e6, 1e-3
@@ -29,8 +29,8 @@ m = model_for(p.with_parameters(friction=0.0))
 worst = 0
 for seed in range(3):
     q = jnp.asarray(np.random.default_rng(seed).normal(scale=2.0, size=m.nq))
-    B = np.asarray(tendons.actuation(m.structure, m.values, grid_frames(m.structure, m.values, q), jnp.zeros(3)))
-    dy = np.asarray(jax.jacfwd(lambda q: tendons.length_changes(m.structure, m.values, grid_frames(m.structure, m.values, q)))(q))
+    B = np.asarray(tendons.actuation(m.structure, m.values, q, jnp.zeros(3)))
+    dy = np.asarray(jax.jacfwd(lambda q: tendons.length_changes(m.structure, m.values, poses(m.values, q)[0]))(q))
     worst = max(worst, np.abs(B + dy.T).max() / np.abs(B).max())
 print("B identity max rel", worst)
 loads = [(0.25, (0.0, 0.2, -0.5))]; tension = {"t1": 2.0, "t3": 1.0}

@@ -7,7 +7,7 @@ import pytest
 
 from tendonsense import lie, tendons
 from tendonsense.forward import model_for, solve
-from tendonsense.kinematics import grid_frames
+from tendonsense.kinematics import grid_frames, poses
 
 
 @pytest.fixture(scope="module")
@@ -20,11 +20,11 @@ def frames(model, q):
 
 
 def lengths(model, q):
-    return tendons.length_changes(model.structure, model.values, frames(model, q))
+    return tendons.length_changes(model.structure, model.values, poses(model.values, q)[0])
 
 
 def actuation(model, q, friction):
-    return tendons.actuation(model.structure, model.values, frames(model, q), friction)
+    return tendons.actuation(model.structure, model.values, q, friction)
 
 
 def random_q(model, seed, scale=2.0):
@@ -48,6 +48,26 @@ def test_friction_breaks_the_identity(prototype):
     B = np.asarray(actuation(model, q, jnp.full(3, 0.4)))
     dy = np.asarray(jax.jacfwd(lambda q: lengths(model, q))(q))
     assert np.abs(B + dy.T).max() > 1e-3 * np.abs(B).max()
+
+
+def test_pulled_back_tendon_forces_are_body_jacobian_products(prototype):
+    """B(q) as a pull-back through the poses equals ``Σ_i J_iᵀ [d_i × Rᵀf_i; Rᵀf_i]`` (eq. 13–14)
+    with the body Jacobians of eq. 6, friction included."""
+    model = model_for(prototype)
+    q = random_q(model, 5, scale=1.0)
+    grid = frames(model, q)
+    unit = tendons.unit_cotangents(model.structure, model.values, grid.g, jnp.full(3, 0.4))
+    # a cotangent [[f dᵀ, f], [0, 0]] holds the global force f in its last column
+    R = np.asarray(grid.g[:, :3, :3])
+    f_loc = np.einsum("nji,knj->kni", R, np.asarray(unit[:, :, :3, 3]))
+    B = np.zeros((model.nq, 3))
+    for grp, index in zip(model.values.tendons, model.structure.groups):
+        for k, j in enumerate(index):
+            for node, d in zip(grp.nodes[k], grp.offsets[k]):
+                W = np.r_[np.cross(d, f_loc[j, node]), f_loc[j, node]]
+                B[:, j] += np.asarray(grid.J[node]).T @ W
+    np.testing.assert_allclose(np.asarray(actuation(model, q, jnp.full(3, 0.4))), B,
+                               rtol=0, atol=1e-10 * np.abs(B).max())
 
 
 @pytest.mark.parametrize("seed", [3, 4])

@@ -149,7 +149,7 @@ def _jacobians_fn(structure: Structure, measured: tuple[int, ...]):
 
     def parts(q, z, T, drive, unknowns, values):
         t = terms(structure, values, q, z, drive._replace(tensions=T), unknowns, 1.0)
-        E = values.young_modulus * (values.stiffness() @ q) - t.B @ t.tensions - t.external
+        E = values.young_modulus * (values.stiffness() @ q) - t.load
         return E, t.y[np.array(measured, int)]
 
     def jac(q, z, T, drive, unknowns, values):

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import tendons
-from .kinematics import grid_frames
+from .kinematics import poses
 from .model import Model
 from .result import Result
 from .robot import Robot
@@ -149,7 +149,7 @@ class Derivatives:
 def _output_jacobian_fn(structure):
     def outputs(q, values):
         return (marker_positions(structure, values, q),
-                tendons.length_changes(structure, values, grid_frames(structure, values, q)))
+                tendons.length_changes(structure, values, poses(values, q)[0]))
 
     return jax.jit(jax.jacfwd(outputs))
 

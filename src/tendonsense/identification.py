@@ -146,7 +146,7 @@ def _snapshot_fns(structure: Structure):
     def equilibrium(q, theta, values, drive):
         values = values._replace(**theta)
         t = terms(structure, values, q, jnp.zeros(0), drive, unknowns, 1.0)
-        return values.young_modulus * (values.stiffness() @ q) - t.B @ t.tensions - t.external
+        return values.young_modulus * (values.stiffness() @ q) - t.load
 
     def jacobians(q, values, drive):
         theta = {k: getattr(values, k) for k in PARAMETERS}

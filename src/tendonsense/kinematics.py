@@ -1,6 +1,9 @@
 """Kinematics: the pose ``g(X)`` by the 4th-order Magnus expansion with the two-point Zannah
 quadrature (eq. 4, appendix) and the body Jacobian ``J(q, X)`` with ``η = J q̇`` (eq. 6).
 
+The solvers use poses alone (:func:`poses`) and take generalized forces ``Jᵀ W`` as the
+pull-back (reverse-mode derivative) of forces through them; :func:`grid_frames` gives J itself.
+
 Recursion over the grid intervals, ``g_{i+1} = g_i exp(Ω_i)`` and
 ``J_{i+1} = Ad_{exp(Ω_i)}^{-1} (J_i + dexp_{Ω_i} ∂Ω_i/∂q)``, exact for the discrete map.
 """
@@ -33,28 +36,55 @@ class Frames(NamedTuple):
     J: jax.Array
 
 
+def _strains(q, Phi1, Phi2):
+    return Phi1 @ q + _XI_STAR, Phi2 @ q + _XI_STAR
+
+
+def omega(q, h, Phi1, Phi2):
+    """Ω over steps of length h (appendix): ``Ω = h/2 (ξ1 + ξ2) + √3 h²/12 ad_ξ1 ξ2``."""
+    xi1, xi2 = _strains(q, Phi1, Phi2)
+    h = h[:, None]
+    return h / 2 * (xi1 + xi2) + _C * h**2 * jnp.einsum("nij,nj->ni", _vad(xi1), xi2)
+
+
 def magnus(q, h, Phi1, Phi2):
-    """Ω over steps of length h and ∂Ω/∂q (appendix):
-    ``Ω = h/2 (ξ1 + ξ2) + √3 h²/12 ad_ξ1 ξ2``."""
-    xi1 = Phi1 @ q + _XI_STAR
-    xi2 = Phi2 @ q + _XI_STAR
+    """Ω (:func:`omega`) and ∂Ω/∂q."""
+    xi1, xi2 = _strains(q, Phi1, Phi2)
     h = h[:, None]
     a1, a2 = _vad(xi1), _vad(xi2)
-    Omega = h / 2 * (xi1 + xi2) + _C * h**2 * jnp.einsum("nij,nj->ni", a1, xi2)
     dOmega = (h[..., None] / 2 * (Phi1 + Phi2)
               + _C * h[..., None] ** 2 * (a1 @ Phi2 - a2 @ Phi1))
-    return Omega, dOmega
+    return omega(q, h[:, 0], Phi1, Phi2), dOmega
 
 
-def grid_poses(values: Values, q, points: PointSet | None = None):
-    """Poses (n_nodes, 4, 4) alone, without the Jacobians; with ``points``, also theirs."""
-    Omega, _ = magnus(q, values.h, values.Phi1, values.Phi2)
-    eye = jnp.eye(4, dtype=Omega.dtype)[None]
-    g = values.base @ jnp.concatenate([eye, jax.lax.associative_scan(jnp.matmul, _vexp(Omega))])
-    if points is None:
-        return g
-    Om, _ = magnus(q, points.h, points.Phi1, points.Phi2)
-    return g, g[points.start] @ _vexp(Om)
+def poses(values: Values, q, *points: PointSet):
+    """Poses (n_nodes, 4, 4) at every grid node (base pose included) and, for each of
+    ``points``, at those points — no Jacobians: generalized forces are taken as the pull-back
+    of forces through this map (:func:`force_cotangent`), so the cost of an exact Jacobian
+    grows with the coordinates, not their square."""
+    n = values.h.shape[0]
+    sets = [PointSet(None, values.h, values.Phi1, values.Phi2), *points]
+    E = _vexp(omega(q, *(jnp.concatenate([getattr(p, f) for p in sets])
+                         for f in ("h", "Phi1", "Phi2"))))
+    eye = jnp.eye(4, dtype=E.dtype)[None]
+    g = values.base @ jnp.concatenate([eye, jax.lax.associative_scan(jnp.matmul, E[:n])])
+    out, k = [g], n
+    for p in points:
+        m = p.h.shape[0]
+        out.append(g[p.start] @ E[k:k + m])
+        k += m
+    return tuple(out)
+
+
+def force_cotangent(f, offsets=None):
+    """The cotangent of a pose ``g`` for a global force ``f`` at ``g [d; 1]``: the derivative
+    of the virtual work ``f · (p + R d)`` with respect to g, so that pulling it back through
+    :func:`poses` gives the generalized force ``Jᵀ [d × Rᵀf; Rᵀf]`` of eq. 8b and 13–14."""
+    top = f[..., :, None] if offsets is None else jnp.concatenate(
+        [f[..., :, None] * offsets[..., None, :], f[..., :, None]], axis=-1)
+    if offsets is None:
+        top = jnp.concatenate([jnp.zeros(f.shape + (3,), f.dtype), top], axis=-1)
+    return jnp.concatenate([top, jnp.zeros(f.shape[:-1] + (1, 4), f.dtype)], axis=-2)
 
 
 def grid_frames(structure: Structure, values: Values, q, *points: PointSet):
@@ -89,9 +119,9 @@ def _chain(structure, values, E, A) -> Frames:
     return Frames(values.base @ G, J)
 
 
-def positions(frames: Frames, offsets=None) -> jax.Array:
-    """Points ``p + R d`` of the frames (global), d in the cross-section frame."""
-    p = frames.g[:, :3, 3]
+def positions(g, offsets=None) -> jax.Array:
+    """Points ``p + R d`` of the poses ``g`` (global), d in the cross-section frame."""
+    p = g[:, :3, 3]
     if offsets is None:
         return p
-    return p + jnp.einsum("nij,nj->ni", frames.g[:, :3, :3], offsets)
+    return p + jnp.einsum("nij,nj->ni", g[:, :3, :3], offsets)

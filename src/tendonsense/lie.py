@@ -13,14 +13,11 @@ import numpy as np
 _SMALL = 1e-2  # theta^2 below which the Taylor series are used (theta < 0.1)
 
 
-# skew(w) = SIGN * [w, 0][INDEX]
-_INDEX = np.array([[3, 2, 1], [2, 3, 0], [1, 0, 3]])
-_SIGN = np.array([[0.0, -1.0, 1.0], [1.0, 0.0, -1.0], [-1.0, 1.0, 0.0]])
-
-
 def skew(w):
     """3-vector -> 3x3 skew-symmetric matrix, ``skew(a) @ b == cross(a, b)``."""
-    return _SIGN * jnp.concatenate([w, jnp.zeros(1, w.dtype)])[_INDEX]
+    z = jnp.zeros_like(w[0])
+    return jnp.stack([jnp.stack([z, -w[2], w[1]]), jnp.stack([w[2], z, -w[0]]),
+                      jnp.stack([-w[1], w[0], z])])
 
 
 def hat(xi):
@@ -73,15 +70,20 @@ def _theta(w):
 
 def expmap(Omega):
     """Exponential map se(3) -> SE(3) (appendix):
-    ``exp(Ω^) = I + Ω^ + (1 - cos θ)/θ² Ω^² + (θ - sin θ)/θ³ Ω^³``, θ = |Ω_w|."""
-    t2, t, small = _theta(Omega[:3])
+    ``exp(Ω^) = I + Ω^ + (1 - cos θ)/θ² Ω^² + (θ - sin θ)/θ³ Ω^³``, θ = |Ω_w|, in the
+    equivalent Rodrigues form ``R = I + (1 − θ² c2) w~ + c1 w~²``, ``p = (I + c1 w~ + c2 w~²) v``."""
+    w, v = Omega[:3], Omega[3:]
+    t2, t, small = _theta(w)
     c1 = jnp.where(small, 1 / 2 - t2 / 24 + t2**2 / 720 - t2**3 / 40320 + t2**4 / 3628800,
                    (1 - jnp.cos(t)) / t**2)
     c2 = jnp.where(small, 1 / 6 - t2 / 120 + t2**2 / 5040 - t2**3 / 362880 + t2**4 / 39916800,
                    (t - jnp.sin(t)) / t**3)
-    H = hat(Omega)
-    H2 = H @ H
-    return jnp.eye(4, dtype=Omega.dtype) + H + c1 * H2 + c2 * (H2 @ H)
+    W = skew(w)
+    R = (1 - c1 * t2) * jnp.eye(3, dtype=Omega.dtype) + (1 - t2 * c2) * W + c1 * jnp.outer(w, w)
+    wv = jnp.cross(w, v)
+    p = v + c1 * wv + c2 * jnp.cross(w, wv)
+    top = jnp.concatenate([R, p[:, None]], axis=1)
+    return jnp.concatenate([top, jnp.array([[0.0, 0.0, 0.0, 1.0]], Omega.dtype)], axis=0)
 
 
 def dexp(Omega):

@@ -1,25 +1,19 @@
-"""External loads as generalized forces (eq. 8b): gravity as a distributed load and point
-forces given in the global frame at material points."""
+"""External loads (eq. 8b): gravity as a distributed load and point forces given in the global
+frame at material points, as cotangents of the poses where they act
+(:func:`~tendonsense.kinematics.force_cotangent`); pulled back through the poses they give
+``∫ Jᵀ M̄ Ad_g⁻¹ G dX`` and ``Σ_k J_kᵀ Ad*_{g_θ} F_k``."""
 
 from __future__ import annotations
 
-import jax.numpy as jnp
-
-from .kinematics import Frames
+from .kinematics import force_cotangent
 
 
-def _force_wrench(frames: Frames, f_global):
-    """Body wrenches ``[0; Rᵀ f]`` of forces applied at the frames' origins."""
-    f_loc = jnp.einsum("nji,nj->ni", frames.g[:, :3, :3], f_global)
-    return jnp.concatenate([jnp.zeros_like(f_loc), f_loc], axis=1)
+def gravity(weights, density, acceleration):
+    """Gravity at the quadrature points by its cotangents; ``weights`` carry the area and the
+    rule's weights."""
+    return force_cotangent((density * weights)[:, None] * acceleration[None, :])
 
 
-def gravity(frames: Frames, weights, density, acceleration):
-    """``∫ Jᵀ M̄ Ad_g⁻¹ G dX`` by quadrature: ``weights`` carry the area and the rule's weights."""
-    f = (density * weights)[:, None] * acceleration[None, :]
-    return jnp.einsum("nki,nk->i", frames.J, _force_wrench(frames, f))
-
-
-def point_forces(frames: Frames, forces):
-    """``Σ_k J_kᵀ Ad*_{g_θ} F_k`` for global forces ``forces`` (n_p, 3) at the frames."""
-    return jnp.einsum("nki,nk->i", frames.J, _force_wrench(frames, forces))
+def point_forces(forces):
+    """Global forces ``forces`` (n_p, 3) at their points' origins by their cotangents."""
+    return force_cotangent(forces)

@@ -20,9 +20,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import loads, tendons
+from . import linalg, loads, tendons
 from .compiled import Program
-from .kinematics import Frames, grid_frames, positions
+from .kinematics import poses, positions
 from .model import VALUE_NAMES, Structure, Values, points_at
 
 #: compiled programs kept per kind (each keyed by structure); older ones are released
@@ -64,28 +64,33 @@ class Unknowns(NamedTuple):
 class Terms(NamedTuple):
     """The parts of eq. 7 at one configuration."""
 
-    grid: Frames
-    B: jax.Array  # (nq, n_t), eq. 14
+    grid: jax.Array  # poses at the grid nodes (n_nodes, 4, 4)
+    B: jax.Array  # (nq, n_t), eq. 14 (left out of compiled programs that do not use it)
     y: jax.Array  # (n_t,), eq. 9
     tensions: jax.Array
-    external: jax.Array  # F(q) of eq. 8b
+    load: jax.Array  # B(q) T + F(q), eq. 7 and 8b
 
 
 def terms(structure: Structure, values: Values, q, z, drive: Drive, unknowns: Unknowns,
           lam) -> Terms:
+    """Every generalized force is one pull-back of forces through the poses (reverse mode), so
+    that its exact Jacobian (forward over reverse) costs O(nq) passes, not O(nq²) body
+    Jacobians."""
     T = lam * drive.tensions + unknowns.tensions @ z
     a = lam * drive.gravity + z @ unknowns.gravity
+    sets = [values.gravity_points]
     if drive.load_X.shape[0]:
-        grid, gp, at_loads = grid_frames(structure, values, q, values.gravity_points,
-                                         points_at(structure, values, drive.load_X))
-        F = lam * drive.forces + jnp.tensordot(z, unknowns.forces, axes=1)
-        point = loads.point_forces(at_loads, F)
-    else:
-        grid, gp = grid_frames(structure, values, q, values.gravity_points)
-        point = 0.0
-    B = tendons.actuation(structure, values, grid, values.friction)
-    external = point + loads.gravity(gp, values.gravity_weights, values.density, a)  # eq. 8b
-    return Terms(grid, B, tendons.length_changes(structure, values, grid), T, external)
+        sets.append(points_at(structure, values, drive.load_X))
+    pose, pull = jax.vjp(lambda q: poses(values, q, *sets), q)
+    unit = tendons.unit_cotangents(structure, values, pose[0], values.friction)
+    external = [loads.gravity(values.gravity_weights, values.density, a)]  # eq. 8b
+    if drive.load_X.shape[0]:
+        external.append(loads.point_forces(lam * drive.forces
+                                           + jnp.tensordot(z, unknowns.forces, axes=1)))
+    load = pull((jnp.tensordot(T, unit, axes=1), *external))[0]
+    zeros = [jnp.zeros_like(c) for c in external]
+    B = jax.vmap(lambda c: pull((c, *zeros))[0])(unit).T
+    return Terms(pose[0], B, tendons.length_changes(structure, values, pose[0]), T, load)
 
 
 class Scaling(NamedTuple):
@@ -97,7 +102,7 @@ class Scaling(NamedTuple):
 
 
 def scaling(values: Values, measured: tuple[int, ...]) -> Scaling:
-    L_inv = jnp.linalg.inv(jnp.linalg.cholesky(values.stiffness()))
+    L_inv = linalg.lower_inverse(jnp.linalg.cholesky(values.stiffness()))
     b = values.stretch_unit[:, np.array(measured, int)]
     root_k = 1.0 / jnp.maximum(jnp.linalg.norm(L_inv @ b, axis=0), 1e-150)
     E = jnp.sqrt(values.young_modulus)
@@ -112,7 +117,7 @@ def residual(structure: Structure, values: Values, measured: tuple[int, ...], x,
     nq = structure.nq
     q, z = x[:nq], x[nq:]
     t = terms(structure, values, q, z, drive, unknowns, lam)
-    load = t.B @ t.tensions + t.external
+    load = t.load
     E = sc.L_inv @ (values.young_modulus * (values.stiffness() @ q) - load)  # eq. 7
     sel = np.array(measured, int)
     e = sc.root_k * (t.y[sel] - lam * drive.targets)
@@ -249,7 +254,7 @@ def _outputs_fn(structure: Structure):
         backbone = points_at(structure, values,
                              jnp.linspace(0.0, values.length, BACKBONE_POINTS))
         markers = points_at(structure, values, values.marker_X)
-        grid, bb, mk = grid_frames(structure, values, q, backbone, markers)
+        grid, bb, mk = poses(values, q, backbone, markers)
         return (positions(mk, values.marker_offsets), positions(bb),
                 tendons.length_changes(structure, values, grid), admissible(values, q))
 
@@ -264,8 +269,7 @@ def shape_outputs(structure: Structure, values: Values, q):
 
 def marker_positions(structure: Structure, values: Values, q):
     """Marker positions (n_m, 3) at q, traceable (differentiable in q and in the values)."""
-    pts = points_at(structure, values, values.marker_X)
-    _, mk = grid_frames(structure, values, q, pts)
+    _, mk = poses(values, q, points_at(structure, values, values.marker_X))
     return positions(mk, values.marker_offsets)
 
 
@@ -281,9 +285,10 @@ def _derivatives_fn(structure: Structure, measured: tuple[int, ...], wrt: tuple[
 
         theta = {k: getattr(values, k) if k in VALUE_NAMES else getattr(drive, k) for k in wrt}
         Rx, Rt = jax.jacfwd(r, argnums=(0, 1))(x, theta)
-        lu = jax.scipy.linalg.lu_factor(Rx)
-        return {k: -jax.scipy.linalg.lu_solve(lu, v.reshape(x.size, -1)).reshape(v.shape)
-                for k, v in Rt.items()}
+        flat = {k: v.reshape(x.size, -1) for k, v in Rt.items()}
+        sol = -linalg.solve(Rx, jnp.concatenate(list(flat.values()), axis=1))
+        cut = np.cumsum([v.shape[1] for v in flat.values()])[:-1]
+        return {k: s.reshape(Rt[k].shape) for k, s in zip(flat, jnp.split(sol, cut, axis=1))}
 
     return jax.jit(jac)
 

@@ -20,10 +20,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import tendons
+from . import linalg, tendons
 from .estimation import Noise, Problem, estimate_problem
 from .forward import model_for, tendon_vector
-from .kinematics import Frames, grid_poses, positions
+from .kinematics import poses, positions
 from .model import VALUE_NAMES, Structure, points_at
 from .robot import Robot
 from .statics import (CACHE_SIZE, Drive, Unknowns, admissible, residual, scaling,
@@ -89,7 +89,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
 
     def init(x0, d0, p0, unknowns, values):
         m0 = measurements(d0)
-        return Carry(x0, jnp.linalg.inv(jac(x0, d0, unknowns, at(values, p0))),
+        return Carry(x0, linalg.inv(jac(x0, d0, unknowns, at(values, p0))),
                      jnp.zeros((x0.size, m0.size)), m0, jnp.asarray(False), jnp.asarray(0))
 
     def step(carry: Carry, d, p, unknowns, values):
@@ -124,7 +124,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
             safe = accept & (jnp.abs(denom) > 1e-300)
             broyden = st["H"] + jnp.outer(step - Hy, step @ st["H"]) / jnp.where(
                 safe, denom, 1.0)
-            H = jax.lax.cond(refresh, lambda: jnp.linalg.inv(jac(st["x"], d, unknowns, vs)),
+            H = jax.lax.cond(refresh, lambda: linalg.inv(jac(st["x"], d, unknowns, vs)),
                              lambda: jnp.where(safe, broyden, st["H"]))
             give_up = (~accept & st["fresh"] & (st["alpha"] < 2.0**-30)) | (
                 refresh & (st["jacs"] >= MAX_JACOBIANS))
@@ -156,17 +156,17 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
             HW = H @ W
             M = v.T @ HW
             ok_m = jnp.abs(jnp.linalg.det(M)) > 1e-300
-            Hn = H + (v - HW) @ jnp.linalg.solve(jnp.where(ok_m, M, jnp.eye(M.shape[0])),
-                                                 v.T @ H)
+            Hn = H + (v - HW) @ linalg.solve(jnp.where(ok_m, M, jnp.eye(M.shape[0])),
+                                             v.T @ H)
             return jnp.where(ok_m, Hn, H)
 
         H = jax.lax.cond(carry.count % refine_every == 0, refine, lambda H: H, st["H"])
         return finish(carry, d, values, x, ok, fine, H, -H @ Rm, st["evals"], st["jacs"])
 
     def finish(carry, d, values, x, ok, fine, H, dx_dm, evals, jacs):
-        grid, g = grid_poses(values, x[:nq], points_at(structure, values, values.marker_X))
-        markers = positions(Frames(g, None), values.marker_offsets)
-        y = tendons.length_changes(structure, values, Frames(grid, None))
+        grid, g = poses(values, x[:nq], points_at(structure, values, values.marker_X))
+        markers = positions(g, values.marker_offsets)
+        y = tendons.length_changes(structure, values, grid)
         # a failed sample leaves the carry as it was: the next one starts from the last good
         new = Carry(x, H, dx_dm, measurements(d), ok, carry.count + 1)
         keep = carry._replace(count=carry.count + 1)
@@ -250,7 +250,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)
         C = st["J"][nq:]
         rhs = jnp.concatenate([-C.T @ Rm[nq:], -Rm[:nq]])
-        dx_dm = jnp.linalg.solve(kkt(st["J"]), rhs)[:nq + n_z]
+        dx_dm = linalg.solve(kkt(st["J"]), rhs)[:nq + n_z]
         return finish(carry, d, values, x, ok, fine, carry.H, dx_dm, st["evals"], st["jacs"])
 
     if len(measured) > n_z:
