@@ -49,9 +49,10 @@ class LegendreBasis:
                 start += k
         return out
 
-    def __call__(self, X, length=None, xp=np):
+    def __call__(self, X, length=None, xp=np, side="right"):
         """``Φξ(X)``, shape (len(X), 6, n); with ``xp=jax.numpy`` X and ``length`` may be traced
-        (a point at a run-time X, differentiable in X)."""
+        (a point at a run-time X, differentiable in X). ``side`` is that of
+        :meth:`ElementsBasis.__call__` (one element here: no effect)."""
         X = xp.atleast_1d(xp.asarray(X, dtype=float))
         s = 2.0 * X / (self.length if length is None else length) - 1.0
         P = [xp.ones_like(s), s]  # Bonnet: (k+1) P_{k+1} = (2k+1) s P_k − k P_{k−1}
@@ -70,7 +71,7 @@ class ElementsBasis:
     each with its own :class:`LegendreBasis` block per active mode in its local coordinate,
     no continuity imposed where elements meet (the strain may jump at a disk). Coordinates are
     ordered element by element. A point on a boundary belongs to the element after it (the
-    last point, X = L, to the last element)."""
+    last point, X = L, to the last element), or with ``side="left"`` to the one before it."""
 
     bounds: tuple[float, ...]
     degrees: Mapping[str, int]
@@ -83,12 +84,12 @@ class ElementsBasis:
     def n(self) -> int:
         return self.n_elements * sum(d + 1 for d in self.degrees.values())
 
-    def __call__(self, X, bounds=None, xp=np):
+    def __call__(self, X, bounds=None, xp=np, side="right"):
         """``Φξ(X)``, shape (len(X), 6, n); with ``xp=jax.numpy``, X and ``bounds`` may be
         traced."""
         X = xp.atleast_1d(xp.asarray(X, dtype=float))
         b = xp.asarray(self.bounds if bounds is None else bounds, dtype=float)
-        k = xp.clip(xp.searchsorted(b, X, side="right") - 1, 0, self.n_elements - 1)
+        k = xp.clip(xp.searchsorted(b, X, side=side) - 1, 0, self.n_elements - 1)
         a, c = b[k], b[k + 1]
         local = LegendreBasis(1.0, self.degrees)((X - a) / (c - a), 1.0, xp)
         one_hot = (k[:, None] == xp.arange(self.n_elements)[None, :]).astype(float)

@@ -76,6 +76,11 @@ def poses(values: Values, q, *points: PointSet):
     return tuple(out)
 
 
+def end_stretches(values: Values, q):
+    """The linear strain ν (body frame) at the two ends of every interval, (n_int, 2, 3)."""
+    return values.stretch_ends @ q + _XI_STAR[3:]
+
+
 def force_cotangent(f, offsets=None):
     """The cotangent of a pose ``g`` for a global force ``f`` at ``g [d; 1]``: the derivative
     of the virtual work ``f · (p + R d)`` with respect to g, so that pulling it back through

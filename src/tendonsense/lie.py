@@ -8,7 +8,6 @@ series so that values *and* derivatives stay exact at zero rotation.
 from __future__ import annotations
 
 import jax.numpy as jnp
-import numpy as np
 
 _SMALL = 1e-2  # theta^2 below which the Taylor series are used (theta < 0.1)
 

@@ -78,8 +78,8 @@ class Values(NamedTuple):
     K_axial: jax.Array  # eq. 8a with Σ = diag(0, Jy, Jz, A, 0, 0): the part ∝ E
     K_shear: jax.Array  # eq. 8a with Σ = diag(Jx, 0, 0, 0, A, A): the part ∝ G
     stretch_unit: jax.Array  # (nq, n_t) small-strain ∂y/∂q at q = 0 (residual scaling)
-    gravity_points: PointSet  # two-point Gauss rule on every interval
-    gravity_weights: jax.Array  # quadrature weight x area, so that ∫ρA f dX = ρ Σ w f
+    gravity_weights: jax.Array  # (n_int, 4): ∫ A p dX = Σ w · [p_i, p'_i, p_{i+1}, p'_{i+1}]
+    stretch_ends: jax.Array  # (n_int, 2, 3, nq) the basis of ν at every interval's two ends
     tendons: tuple[TendonGroup, ...]
     marker_X: jax.Array  # (n_m,)
     marker_offsets: jax.Array  # (n_m, 3)
@@ -156,13 +156,15 @@ class Model:
             w = np.stack([zero, d[:, 2], -d[:, 1], 1 + zero, zero, zero], axis=1)
             b[:, j] = np.einsum("k,kai,ka->i", W, Phi, w)
 
-        # gravity: two-point Gauss rule on every interval
-        xg2 = np.array([0.5 - _Z, 0.5 + _Z])
-        start = np.repeat(np.arange(h.size), 2)
-        hsub = (h[:, None] * xg2).ravel()
-        gp = PointSet(start, hsub, basis(nodes[start] + (0.5 - _Z) * hsub),
-                      basis(nodes[start] + (0.5 + _Z) * hsub))
-        gw = np.repeat(h / 2, 2) * rod.area(nodes[start] + hsub)
+        # gravity (eq. 8b): ∫ ρ A(X) p(X) dX with p cubic Hermite on every interval through the
+        # node positions and tangents p' = R ν, weights exact for A(X) (8-point Gauss)
+        s = 0.5 * (xg + 1)
+        hermite = np.stack([2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s,
+                            -2 * s**3 + 3 * s**2, s**3 - s**2], axis=1)  # (8, 4)
+        area = rod.area(nodes[:-1, None] + h[:, None] * s)  # (n_int, 8)
+        gw = np.einsum("ik,k,kj->ij", area, 0.5 * wg, hermite) * h[:, None]
+        gw[:, 1::2] *= h[:, None]  # the tangent terms carry h p'
+        ends = np.stack([basis(nodes[:-1]), basis(nodes[1:], side="left")], axis=1)[:, :, 3:]
 
         groups, tendon_values = [], []
         for nd in sorted({len(t.disks) for t in robot.tendons}):
@@ -182,8 +184,8 @@ class Model:
             length=np.float64(L), element_bounds=np.array(bounds, float), nodes=nodes,
             Phi1=basis(z1), Phi2=basis(z2),
             radius_z=np.stack([rod.radius(z1), rod.radius(z2)], axis=1),
-            K_axial=K_axial, K_shear=K_shear, stretch_unit=b, gravity_points=gp,
-            gravity_weights=gw, tendons=tuple(tendon_values),
+            K_axial=K_axial, K_shear=K_shear, stretch_unit=b, gravity_weights=gw,
+            stretch_ends=ends, tendons=tuple(tendon_values),
             marker_X=np.array([m.X for m in robot.markers], float),
             marker_offsets=np.array([m.offset for m in robot.markers], float).reshape(-1, 3),
             base=base, young_modulus=np.float64(rod.young_modulus),

@@ -22,7 +22,7 @@ import numpy as np
 
 from . import linalg, loads, tendons
 from .compiled import Program
-from .kinematics import poses, positions
+from .kinematics import end_stretches, poses, positions
 from .model import VALUE_NAMES, Structure, Values, points_at
 
 #: compiled programs kept per kind (each keyed by structure); older ones are released
@@ -78,19 +78,21 @@ def terms(structure: Structure, values: Values, q, z, drive: Drive, unknowns: Un
     Jacobians."""
     T = lam * drive.tensions + unknowns.tensions @ z
     a = lam * drive.gravity + z @ unknowns.gravity
-    sets = [values.gravity_points]
-    if drive.load_X.shape[0]:
-        sets.append(points_at(structure, values, drive.load_X))
-    pose, pull = jax.vjp(lambda q: poses(values, q, *sets), q)
-    unit = tendons.unit_cotangents(structure, values, pose[0], values.friction)
-    external = [loads.gravity(values.gravity_weights, values.density, a)]  # eq. 8b
-    if drive.load_X.shape[0]:
-        external.append(loads.point_forces(lam * drive.forces
-                                           + jnp.tensordot(z, unknowns.forces, axes=1)))
-    load = pull((jnp.tensordot(T, unit, axes=1), *external))[0]
-    zeros = [jnp.zeros_like(c) for c in external]
+    sets = [points_at(structure, values, drive.load_X)] if drive.load_X.shape[0] else []
+
+    def configuration(q):
+        grid, *points = poses(values, q, *sets)
+        return (grid, end_stretches(values, q), *points)
+
+    (grid, nu, *_), pull = jax.vjp(configuration, q)
+    unit = tendons.unit_cotangents(structure, values, grid, values.friction)
+    weight_g, weight_nu = loads.gravity(values, grid, nu, a)  # eq. 8b
+    point = [loads.point_forces(lam * drive.forces
+                                + jnp.tensordot(z, unknowns.forces, axes=1))] if sets else []
+    load = pull((jnp.tensordot(T, unit, axes=1) + weight_g, weight_nu, *point))[0]
+    zeros = [jnp.zeros_like(nu), *(jnp.zeros_like(c) for c in point)]
     B = jax.vmap(lambda c: pull((c, *zeros))[0])(unit).T
-    return Terms(pose[0], B, tendons.length_changes(structure, values, pose[0]), T, load)
+    return Terms(grid, B, tendons.length_changes(structure, values, grid), T, load)
 
 
 class Scaling(NamedTuple):
