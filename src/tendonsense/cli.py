@@ -290,9 +290,43 @@ def _analysis_run(args):
     if args.json:
         print(json.dumps({"summary": summary, "files": [str(f) for f in files]}))
     else:
-        print(json.dumps(summary, indent=1))
+        print(_summary_text(args.command, summary))
         print("wrote " + ", ".join(str(f) for f in files))
     return ok
+
+
+def _summary_text(command: str, summary: dict) -> str:
+    """The summary of an analysis in words, with units, beside the paper's figures."""
+    pct = lambda v: f"{100 * v:.1f} %"  # noqa: E731
+    lines = []
+    if command == "sensitivity":
+        lines.append("one tendon: relative error of the estimated tip force under each error "
+                     "(this run; the paper)")
+        for src, v in summary["single_tendon"].items():
+            lines.append(f"  {src} error: mean {pct(v['mean'])}, max {pct(v['max'])} "
+                         f"(paper: mean {pct(v['paper_mean'])}, max {pct(v['paper_max'])})")
+        lines.append("three tendons: mean relative error of the estimated 3-D tip force "
+                     "(over the applied forces)")
+        for src, v in summary["three_tendons"].items():
+            lo, hi = v["paper_range"]
+            lines.append(f"  {src} error: mean {pct(v['mean'])}, from "
+                         f"{pct(v['min_over_forces'])} to {pct(v['max_over_forces'])} "
+                         f"(paper: {pct(lo)} to {pct(hi)})")
+    elif command == "resolution":
+        lines.append("smallest detectable change of each tip-force component "
+                     "(mean ± standard deviation over the applied forces)")
+        for axis, v in summary.items():
+            m, sd = v["mean_g"], v["std_g"]
+            lines.append(f"  along {axis}: {m * GF:.3g} N ({m:.2f} gF) ± {sd * GF:.3g} N "
+                         f"({sd:.2f} gF) (paper: {v['paper_mean_g']:.2f} ± "
+                         f"{v['paper_std_g']:.2f} gF)")
+    else:
+        lines.append("mean relative error of the estimated loads on the paper's experiments")
+        for model, v in summary.items():
+            lines.append(f"  {model}: {pct(v['mean_relative_error_ours'])} "
+                         f"({v['converged']}/{v['rows']} rows converged; the paper's own "
+                         f"estimates: {pct(v['mean_relative_error_paper'])})")
+    return "\n".join(lines)
 
 
 def _vector(v) -> str:
