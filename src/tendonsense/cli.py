@@ -1,4 +1,4 @@
-"""The ``tendonsense`` command line (SPEC §4), a thin layer over the Python API.
+"""The ``tendonsense`` command line, a thin layer over the Python API.
 
 Exit status: 0 success, 1 bad input (one line on stderr, nothing on stdout), 2 bad usage,
 3 a solve that did not converge (its result is still printed, marked ``converged: false``).
@@ -14,6 +14,15 @@ import sys
 import numpy as np
 
 from .robot import RobotFileError, load_robot
+
+DESCRIPTION = """\
+Shape and external forces of a tendon-driven soft robot from its tendon readings, with a
+Cosserat-rod model. Lengths in metres, forces in newtons, positions in the global frame.
+Exit status: 0 success, 1 bad input, 2 bad usage, 3 a solve that did not converge.
+Run 'tendonsense COMMAND --help' for the options of one command."""
+
+#: 1 gram-force in newtons
+GF = 9.80665e-3
 
 
 class UsageError(Exception):
@@ -48,86 +57,123 @@ def _numbers(n: int, what: str):
 
 
 def _common(p: argparse.ArgumentParser):
-    p.add_argument("robot", help="robot description file (TOML, SPEC §3)")
+    p.add_argument("robot", help="the robot file (TOML)")
     p.add_argument("--point-force", action="append", default=[], metavar="X,FX,FY,FZ",
                    type=_numbers(4, "X,FX,FY,FZ"),
-                   help="known point force (global frame, N) at material abscissa X (m)")
-    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    p.add_argument("--plot", metavar="SHAPE.png", help="draw the 3-D shape with its forces")
+                   help="a known force FX, FY, FZ (N, global frame) acting at the distance X "
+                        "(m) from the base along the rod; repeatable")
+    p.add_argument("--json", action="store_true",
+                   help="print the result as one JSON object instead of text")
+    p.add_argument("--plot", metavar="SHAPE.png",
+                   help="also draw the rod's 3-D shape, its markers and forces into a PNG file")
 
 
 def _analysis(sub, name, help_text, robot_default):
     p = sub.add_parser(name, help=help_text)
-    p.add_argument("--robot", default=robot_default, help=f"robot file (default: {robot_default})")
+    p.add_argument("--robot", default=robot_default,
+                   help=f"the robot file (default: {robot_default})")
     p.add_argument("-o", "--out-dir", default="tendonsense_results",
-                   help="folder for the table (CSV and JSON) and the figure (PNG)")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+                   help="folder for the table (CSV and JSON) and the figure (PNG) "
+                        "(default: tendonsense_results)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
     return p
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="tendonsense", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="tendonsense", description=DESCRIPTION,
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
-    p = sub.add_parser("solve", help="forward statics: tensions -> shape")
+    def command(name, summary, description):
+        return sub.add_parser(name, help=summary, description=description)
+
+    p = command("solve", "shape from tendon tensions (forward statics)",
+                "Compute the rod's shape, tendon length changes and marker positions from the "
+                "tendon tensions and any known forces.")
     _common(p)
     p.add_argument("--tension", action="append", default=[], type=_assignment,
-                   metavar="NAME=N", help="tendon tension (N); tendons not named are slack")
+                   metavar="NAME=N",
+                   help="a tendon's tension in newtons; repeatable; tendons not named are slack")
 
-    p = sub.add_parser("fk", help="forward kinematics (eq. 16): tendon length changes -> shape, tensions")
+    p = command("fk", "shape and tensions from tendon length changes (forward kinematics)",
+                "Compute the rod's shape and the tensions needed for the given tendon length "
+                "changes (negative = pulled in).")
     _common(p)
     p.add_argument("--displacement", action="append", default=[], type=_assignment,
-                   metavar="NAME=M", help="tendon length change (m, negative = pulled in)")
+                   metavar="NAME=M",
+                   help="a tendon's length change in metres (negative = pulled in); repeatable")
     p.add_argument("--tension", action="append", default=[], type=_assignment,
-                   metavar="NAME=N", help="tension of a tendon whose length is not given")
+                   metavar="NAME=N",
+                   help="the tension (N) of a tendon whose length change is not given")
 
-    p = sub.add_parser("estimate", help="estimation (eq. 17): tendon lengths and tensions -> "
-                                        "shape and unknown load magnitudes")
+    p = command("estimate", "shape and unknown forces from tendon readings (estimation)",
+                "Estimate the rod's shape and the size of unknown loads from measured tendon "
+                "length changes and tensions: one reading given on the command line, or every "
+                "row of a readings log (--readings). Each unknown needs one measured tendon; "
+                "with more measured tendons than unknowns the estimate is a least-squares fit. "
+                "Every magnitude comes with a 1-sigma band for sensor noise.")
     _common(p)
     p.add_argument("--displacement", action="append", default=[], type=_assignment,
-                   metavar="NAME=M", help="measured tendon length change (m)")
+                   metavar="NAME=M",
+                   help="a measured tendon length change in metres (negative = pulled in)")
     p.add_argument("--tension", action="append", default=[], type=_assignment,
-                   metavar="NAME=N", help="measured tendon tension (N)")
+                   metavar="NAME=N", help="a measured tendon tension in newtons")
     p.add_argument("--unknown", action="append", default=[], type=_unknown, required=True,
                    metavar="X,DX,DY,DZ|gravity",
-                   help="unknown load: a point force of unknown magnitude along global "
-                        "(DX, DY, DZ) at X, or the gravity scale")
+                   help="an unknown load: a force of unknown size along the global direction "
+                        "(DX, DY, DZ) acting at the distance X (m) from the base, or 'gravity' "
+                        "for an unknown scale of the robot's weight; repeatable")
     p.add_argument("--readings", metavar="READINGS.csv",
-                   help="estimate every row of a log; '-' reads it live from standard input")
+                   help="estimate every row of a readings log (CSV); '-' reads the log live "
+                        "from standard input")
     p.add_argument("-o", "--output", metavar="OUT.csv",
-                   help="output file for --readings (written at the end, atomically); without "
-                        "it, or '-', each row goes to standard output as soon as it is estimated")
+                   help="with --readings: write the results to this CSV file once every row "
+                        "is done; without it, or with '-', each result row goes to standard "
+                        "output as soon as it is estimated")
     p.add_argument("--length-noise", type=_positive, default=1e-4, metavar="M",
-                   help="1-σ tendon length noise for the uncertainty band (default 1e-4 m)")
+                   help="standard deviation of the tendon length sensors in metres, for the "
+                        "uncertainty band (default 0.0001 m = 0.1 mm)")
     p.add_argument("--tension-noise", type=_positive, default=0.025 / 3, metavar="FRACTION",
-                   help="1-σ relative tension noise (default 0.025/3)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+                   help="standard deviation of the tension sensors as a fraction of the "
+                        "reading (default 0.00833, i.e. 2.5 %% / 3)")
+    p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
 
-    p = sub.add_parser("identify", help="identification (eq. 19): snapshots -> E, density, μ")
-    p.add_argument("robot", help="robot description file (TOML); its values are the start")
-    p.add_argument("--snapshots", required=True, metavar="SNAPSHOTS.csv")
+    p = command("identify", "fit stiffness, density or friction to measured poses (calibration)",
+                "Fit the Young's modulus, density and/or friction coefficient of the robot "
+                "file to marker positions measured in static poses (snapshots).")
+    p.add_argument("robot", help="the robot file (TOML); its values are the starting guess")
+    p.add_argument("--snapshots", required=True, metavar="SNAPSHOTS.csv",
+                   help="the measured poses: tensions, an optional known load and marker "
+                        "positions, one row per pose")
     p.add_argument("--param", action="append", choices=("young_modulus", "density", "friction"),
-                   help="parameter to fit (repeatable; default young_modulus and density)")
-    p.add_argument("-o", "--output", metavar="FITTED.toml", help="write the fitted robot file")
-    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+                   help="a parameter to fit; repeatable (default: young_modulus and density)")
+    p.add_argument("-o", "--output", metavar="FITTED.toml",
+                   help="write a copy of the robot file with the fitted values")
+    p.add_argument("--json", action="store_true",
+                   help="print the result as one JSON object instead of text")
 
-    p = _analysis(sub, "sensitivity", "sensitivity to length, tension and friction errors "
-                  "(§IV, Fig. 3a and 3b)", "examples/paper_simulation.toml")
-    p.add_argument("--points", type=int, default=9, help="tendon length changes per force (3a)")
-    _analysis(sub, "resolution", "force resolution at the tension sensors' resolution (§IV)",
-              "examples/paper_simulation.toml")
-    p = _analysis(sub, "compare", "GVS vs 3D-PC vs 3D-PC+E on the paper's experiments "
-                  "(§V-B4, Fig. 6)", "examples/paper_prototype.toml")
+    p = _analysis(sub, "sensitivity", "how errors in tendon length, tension and friction "
+                  "change the estimated force (the paper's Fig. 3a and 3b)",
+                  "examples/paper_simulation.toml")
+    p.add_argument("--points", type=int, default=9,
+                   help="tendon length changes per force in the one-tendon study (default 9)")
+    _analysis(sub, "resolution", "the smallest force change the tension sensors can resolve "
+              "(the paper's Section IV)", "examples/paper_simulation.toml")
+    p = _analysis(sub, "compare", "this model against the paper's simpler rod models on the "
+                  "paper's experiments (the paper's Fig. 6)", "examples/paper_prototype.toml")
     p.add_argument("csv", nargs="?", default="examples/paper_experiments.csv",
-                   help="experiments CSV (default: examples/paper_experiments.csv)")
+                   help="the experiments table (default: examples/paper_experiments.csv)")
 
-    p = sub.add_parser("experiments", help="re-run the paper's experiments (Tables II-IV)")
+    p = command("experiments", "re-run the paper's experiments (its Tables II to IV)",
+                "Estimate every row of the paper's experiments and compare with the applied "
+                "loads and the paper's own estimates.")
     p.add_argument("csv", nargs="?", default="examples/paper_experiments.csv",
-                   help="experiments CSV (default: examples/paper_experiments.csv)")
+                   help="the experiments table (default: examples/paper_experiments.csv)")
     p.add_argument("--robot", default="examples/paper_prototype.toml",
-                   help="robot file (default: examples/paper_prototype.toml)")
-    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+                   help="the robot file (default: examples/paper_prototype.toml)")
+    p.add_argument("--json", action="store_true",
+                   help="print the result as one JSON object instead of text")
     return parser
 
 
@@ -161,11 +207,20 @@ def _plot_shape(args, robot, result, unknowns=()):
         return
     from . import plotting
     from .estimation import PointForceUnknown
-    forces = _point_forces(args)
+    estimated = []
     if result.magnitudes is not None:
-        forces += [(u.X, result.magnitudes[i] * np.asarray(u.direction))
-                   for i, u in enumerate(unknowns) if isinstance(u, PointForceUnknown)]
-    plotting.shape(result, args.plot, robot.rod.length, forces, title=f"{robot.name}")
+        estimated = [(u.X, result.magnitudes[i] * np.asarray(u.direction))
+                     for i, u in enumerate(unknowns) if isinstance(u, PointForceUnknown)]
+    what = {"solve": "shape under the given tensions (forward statics)",
+            "fk": "shape for the given tendon length changes (forward kinematics)",
+            "estimate": "shape and force estimated from tendon readings"}[args.command]
+    X = np.linspace(0.0, robot.rod.length, 2)
+    rest = np.asarray(robot.base_position) + X[:, None] * np.asarray(robot.base_rotation)[:, 0]
+    plotting.shape(result, args.plot, robot.rod.length, _point_forces(args),
+                   title=f"{robot.name}: {what}",
+                   kind="estimated" if args.command == "estimate" else "computed",
+                   estimated_forces=estimated, rest=rest,
+                   tensions={k: v for k, v in result.tensions.items() if v > 0})
 
 
 class _Progress:
@@ -235,26 +290,95 @@ def _analysis_run(args):
     if args.json:
         print(json.dumps({"summary": summary, "files": [str(f) for f in files]}))
     else:
-        print(json.dumps(summary, indent=1))
+        print(_summary_text(args.command, summary))
         print("wrote " + ", ".join(str(f) for f in files))
     return ok
 
 
-def _print_result(result, as_json: bool, title: str):
+def _summary_text(command: str, summary: dict) -> str:
+    """The summary of an analysis in words, with units, beside the paper's figures."""
+    pct = lambda v: f"{100 * v:.1f} %"  # noqa: E731
+    lines = []
+    if command == "sensitivity":
+        lines.append("one tendon: relative error of the estimated tip force under each error "
+                     "(this run; the paper)")
+        for src, v in summary["single_tendon"].items():
+            lines.append(f"  {src} error: mean {pct(v['mean'])}, max {pct(v['max'])} "
+                         f"(paper: mean {pct(v['paper_mean'])}, max {pct(v['paper_max'])})")
+        lines.append("three tendons: mean relative error of the estimated 3-D tip force "
+                     "(over the applied forces)")
+        for src, v in summary["three_tendons"].items():
+            lo, hi = v["paper_range"]
+            lines.append(f"  {src} error: mean {pct(v['mean'])}, from "
+                         f"{pct(v['min_over_forces'])} to {pct(v['max_over_forces'])} "
+                         f"(paper: {pct(lo)} to {pct(hi)})")
+    elif command == "resolution":
+        lines.append("smallest detectable change of each tip-force component "
+                     "(mean ± standard deviation over the applied forces)")
+        for axis, v in summary.items():
+            m, sd = v["mean_g"], v["std_g"]
+            lines.append(f"  along {axis}: {m * GF:.3g} N ({m:.2f} gF) ± {sd * GF:.3g} N "
+                         f"({sd:.2f} gF) (paper: {v['paper_mean_g']:.2f} ± "
+                         f"{v['paper_std_g']:.2f} gF)")
+    else:
+        lines.append("mean relative error of the estimated loads on the paper's experiments")
+        for model, v in summary.items():
+            lines.append(f"  {model}: {pct(v['mean_relative_error_ours'])} "
+                         f"({v['converged']}/{v['rows']} rows converged; the paper's own "
+                         f"estimates: {pct(v['mean_relative_error_paper'])})")
+    return "\n".join(lines)
+
+
+def _vector(v) -> str:
+    return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
+
+
+def unknown_label(u) -> str:
+    """Words for an unknown load, e.g. "force at X = 0.25 m along (0, 0, -1)"."""
+    from .estimation import PointForceUnknown
+    if isinstance(u, PointForceUnknown):
+        return f"force at X = {u.X:g} m along {_vector(u.direction)}"
+    return "gravity scale (1 = the robot file's gravity)"
+
+
+def magnitude_text(u, value: float, sigma=None) -> str:
+    """A magnitude with its unit, e.g. "0.0759 N (7.7 gF) ± 0.0027 N (1 sigma)"."""
+    from .estimation import PointForceUnknown
+    band = ""
+    if isinstance(u, PointForceUnknown):
+        if sigma is not None:
+            band = f" ± {sigma:.2g} N (1 σ)"
+        return f"{value:.4g} N ({value / GF:.1f} gF){band}"
+    if sigma is not None:
+        band = f" ± {sigma:.2g} (1 σ)"
+    return f"{value:.4g}{band}"
+
+
+def _print_result(result, as_json: bool, title: str, robot, unknowns=()):
     if as_json:
         print(json.dumps(result.to_json()))
         return
-    print(f"{title}: {'converged' if result.converged else 'NOT CONVERGED'} in "
-          f"{result.iterations} iterations (relative residual {result.residual:.1e})")
+    state = "converged" if result.converged else "NOT CONVERGED"
+    print(f"{title} ({robot.name}): {state} in {result.iterations} iterations "
+          f"(relative residual {result.residual:.1e})")
     if result.magnitudes is not None:
+        print("estimated loads:")
         for i, m in enumerate(result.magnitudes):
-            band = f" ± {result.sigma[i]:.4g}" if result.sigma is not None else ""
-            print(f"  magnitude {i + 1}: {m:.6g}{band}")
+            s = result.sigma[i] if result.sigma is not None else None
+            u = unknowns[i] if i < len(unknowns) else None
+            label = unknown_label(u) if u is not None else f"magnitude {i + 1}"
+            print(f"  {label}: {magnitude_text(u, m, s)}")
+    print("tendons (length change: negative = pulled in):")
     for name in result.tensions:
-        print(f"  tendon {name}: tension {result.tensions[name]:.4f} N, "
-              f"length change {result.displacements[name] * 1e3:+.3f} mm")
+        T, y = result.tensions[name], result.displacements[name]
+        print(f"  {name}: tension {T:.4f} N ({T / GF:.1f} gF), "
+              f"length change {y:+.6f} m ({y * 1e3:+.3f} mm)")
+    print("markers (global frame, x y z):")
+    X = {m.name: m.X for m in robot.markers}
     for name, p in result.markers.items():
-        print(f"  marker {name}: [{', '.join(f'{v:+.4f}' for v in p)}] m")
+        print(f"  {name} (X = {X.get(name, float('nan')):g} m): "
+              f"{' '.join(f'{v:+.4f}' for v in p)} m  "
+              f"({' '.join(f'{v * 1e3:+.1f}' for v in p)} mm)")
 
 
 def _estimate(args, robot):
@@ -265,7 +389,7 @@ def _estimate(args, robot):
             raise UsageError("tendonsense estimate: -o/--output goes with --readings")
         result = estimate(robot, dict(args.displacement), dict(args.tension), args.unknown,
                           _point_forces(args), noise)
-        _print_result(result, args.json, "estimation")
+        _print_result(result, args.json, "estimation", robot, args.unknown)
         _plot_shape(args, robot, result, args.unknown)
         return result.converged
     from . import readings as rd
@@ -346,6 +470,8 @@ def _experiments(args) -> bool:
                                     "paper_estimate": None if r.paper is None else r.paper.tolist(),
                                     "converged": r.converged} for r in rows], **summary}))
         return summary["converged"] == summary["rows"]
+    print("estimated load magnitudes (N for forces, a scale factor for gravity) against the "
+          "applied ones")
     print(f"{'case':<18} {'applied':>22} {'ours':>22} {'paper':>22} {'err ours':>9} "
           f"{'err paper':>9}")
     fmt = lambda v: "-" if v is None else " ".join(f"{x:.4f}" for x in v)  # noqa: E731
@@ -356,6 +482,11 @@ def _experiments(args) -> bool:
           f"{summary['mean_relative_error_paper']:.1%}; {summary['converged']}/"
           f"{summary['rows']} rows converged")
     return summary["converged"] == summary["rows"]
+
+
+PARAMETER_WORDS = {"young_modulus": ("Young's modulus E", " Pa"),
+                   "density": ("density ρ", " kg/m³"),
+                   "friction": ("friction coefficient μ", "")}
 
 
 def _identify(args, robot) -> bool:
@@ -371,12 +502,17 @@ def _identify(args, robot) -> bool:
     if args.json:
         print(json.dumps(fit.to_json()))
     else:
-        for k, v in fit.parameters.items():
-            print(f"{k} = {v:.6g}")
-        print(f"marker RMSE {fit.marker_rmse * 1e3:.2f} mm (robot file's values: "
-              f"{fit.initial_rmse * 1e3:.2f} mm); "
+        print(f"identification ({robot.name}, {len(snapshots)} snapshots): "
               f"{'converged' if fit.converged else 'NOT CONVERGED'} in {fit.iterations} "
               f"iterations")
+        for k, v in fit.parameters.items():
+            label, unit = PARAMETER_WORDS.get(k, (k, ""))
+            print(f"  {label} ({k}): {v:.6g}{unit}")
+        print(f"  marker RMSE: {fit.marker_rmse:.5f} m ({fit.marker_rmse * 1e3:.2f} mm) after "
+              f"the fit, {fit.initial_rmse:.5f} m ({fit.initial_rmse * 1e3:.2f} mm) with the "
+              f"robot file's values")
+        if args.output:
+            print(f"  wrote {args.output}")
     return fit.converged
 
 
@@ -395,12 +531,12 @@ def main(argv=None) -> int:
             return 0 if _estimate(args, robot) else _not_converged()
         if args.command == "solve":
             result = forward.solve(robot, dict(args.tension), _point_forces(args))
-            _print_result(result, args.json, "forward statics")
+            _print_result(result, args.json, "forward statics", robot)
             _plot_shape(args, robot, result)
         elif args.command == "fk":
             result = forward.forward_kinematics(robot, dict(args.displacement),
                                                 dict(args.tension), _point_forces(args))
-            _print_result(result, args.json, "forward kinematics")
+            _print_result(result, args.json, "forward kinematics", robot)
             _plot_shape(args, robot, result)
     except UsageError as exc:
         print(exc, file=sys.stderr)

@@ -31,32 +31,55 @@ def _equal_3d(ax, pts):
         set_lim(c - half, c + half)
 
 
-def shape(result, path, length: float, forces=(), measured_markers=None, title="shape"):
-    """3-D backbone (mm), markers, and force arrows [(X, f_global N)] scaled to the rod of
-    ``length`` (the backbone is sampled uniformly in X)."""
+def shape(result, path, length: float, forces=(), measured_markers=None, title="shape",
+          kind="computed", estimated_forces=(), rest=None, tensions=None):
+    """3-D backbone (mm), markers and force arrows, written as a PNG.
+
+    ``kind`` names how the shape was obtained ("computed" for forward statics or kinematics,
+    "estimated" for an estimate from tendon readings) and labels the legend. ``forces`` are
+    known loads and ``estimated_forces`` estimated ones, each ``[(X, f_global N)]``, drawn to
+    one scale at the backbone point nearest X (the backbone is sampled uniformly in X over a
+    rod of ``length``). ``rest`` (n, 3) is the unloaded centre line (m), drawn dashed;
+    ``tensions`` ({name: N}) are listed in the title's second line.
+    """
     fig = plt.figure(figsize=(6.5, 5.5))
     ax = fig.add_subplot(projection="3d")
     b = np.asarray(result.backbone) * 1e3
-    ax.plot(*b.T, color="tab:red", lw=2.5, label="estimated backbone")
+    pts = [b]
+    if rest is not None:
+        r = np.asarray(rest) * 1e3
+        ax.plot(*r.T, color="grey", ls="--", lw=1, label="unloaded rod")
+        pts.append(r)
+    ax.plot(*b.T, color="tab:red", lw=2.5, label=f"{kind} backbone")
+    ax.scatter(*b[0], color="black", marker="s", s=30, label="clamped base")
     if result.markers:
         m = np.array(list(result.markers.values())) * 1e3
-        ax.scatter(*m.T, color="tab:red", s=30, label="estimated markers")
+        ax.scatter(*m.T, color="tab:red", s=30, label=f"{kind} markers")
     if measured_markers:
         m = np.array(list(measured_markers.values())) * 1e3
         ax.scatter(*m.T, color="black", marker="x", s=40, label="measured markers")
-    pts = [b]
-    scale = 0.25 * np.ptp(b, axis=0).max() / max([np.linalg.norm(f) for _, f in forces] + [1e-12])
-    for X, f in forces:
+    every = [(X, f, "known") for X, f in forces] + [(X, f, "estimated") for X, f in
+                                                     estimated_forces]
+    scale = 0.25 * np.ptp(b, axis=0).max() / max([np.linalg.norm(f) for _, f, _ in every]
+                                                 + [1e-12])
+    colours = {"known": "tab:blue", "estimated": "tab:purple"}
+    shown = set()
+    for X, f, which in every:
         i = int(round(X / length * (len(b) - 1)))
         p, v = b[i], np.asarray(f) * scale
-        ax.quiver(*p, *v, color="tab:purple", arrow_length_ratio=0.2)
+        ax.quiver(*p, *v, color=colours[which], arrow_length_ratio=0.2,
+                  label=None if which in shown else f"{which} force")
+        shown.add(which)
         pts.append(np.array([p + v]))
-        ax.text(*(p + v), f"{np.linalg.norm(f) / GF:.0f} gF", color="tab:purple")
+        n = np.linalg.norm(f)
+        ax.text(*(p + v), f"{n:.3g} N ({n / GF:.0f} gF)", color=colours[which], fontsize=8)
     _equal_3d(ax, np.concatenate(pts))
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
     ax.set_zlabel("z (mm)")
-    ax.set_title(title)
+    if tensions:
+        title += "\ntensions: " + ", ".join(f"{k} = {v:.3g} N" for k, v in tensions.items())
+    ax.set_title(title, fontsize=10)
     ax.legend(loc="upper left", fontsize=8)
     return _save(fig, path)
 
@@ -68,16 +91,18 @@ def sensitivity_single(rows, path):
     for f in forces:
         sel = [r for r in rows if r["force_gF"] == f and "estimate_N" in r]
         y = np.array([r["displacement_m"] for r in sel]) * 1e3
-        ax.plot(y, [r["estimate_N"] / GF for r in sel], "k.-", lw=1)
-        ax.axhline(f, color="grey", ls=":", lw=0.8)
+        ax.plot(y, [r["estimate_N"] / GF for r in sel], "k.-", lw=1,
+                label="estimate, exact readings" if f == forces[0] else None)
+        ax.axhline(f, color="grey", ls=":", lw=0.8,
+                   label="applied force" if f == forces[0] else None)
         for s in SOURCES:
             lo = [min(r[f"{s}_plus_N"], r[f"{s}_minus_N"]) / GF for r in sel]
             hi = [max(r[f"{s}_plus_N"], r[f"{s}_minus_N"]) / GF for r in sel]
             ax.fill_between(y, lo, hi, color=COLOURS[s], alpha=0.25,
-                            label=f"{s} error" if f == forces[0] else None)
+                            label=f"range with a {s} error" if f == forces[0] else None)
     ax.set_xlabel("tendon length change y (mm)")
     ax.set_ylabel("estimated tip force F_z (gF)")
-    ax.set_title("Sensitivity, one tendon (Fig. 3a)")
+    ax.set_title("Estimated tip force with length, tension and friction errors, one tendon")
     ax.legend(fontsize=8)
     return _save(fig, path)
 
@@ -109,7 +134,7 @@ def ellipsoids(entries, path):
     ax.set_xlabel("F_x (gF)")
     ax.set_ylabel("F_y (gF)")
     ax.set_zlabel("F_z (gF)")
-    ax.set_title("Sensitivity, three tendons (Fig. 3b)")
+    ax.set_title("Estimated 3-D tip forces under per-tendon errors (2-σ ellipsoids)")
     ax.legend(fontsize=8)
     return _save(fig, path)
 
@@ -119,7 +144,7 @@ def resolution(rows, path):
     data = [[r[f"resolution_{a}_g"] for r in rows] for a in "xyz"]
     ax.boxplot(data, tick_labels=["Δx", "Δy", "Δz"])
     ax.set_ylabel("smallest detectable increment (g)")
-    ax.set_title("Force resolution at ±(2.5/3)% tension resolution")
+    ax.set_title("Smallest detectable force change per axis\n(tension sensors resolving ±(2.5/3) %)")
     return _save(fig, path)
 
 
@@ -135,6 +160,6 @@ def comparison(table: dict[str, list], path):
         ax.bar(np.arange(len(groups)) + i * width, means, width, label=m)
     ax.set_xticks(np.arange(len(groups)) + width * (len(models) - 1) / 2, groups)
     ax.set_ylabel("mean relative force error (%)")
-    ax.set_title("Model comparison on the paper's experiments")
+    ax.set_title("Force error of each rod model on the paper's experiments")
     ax.legend()
     return _save(fig, path)

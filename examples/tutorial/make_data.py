@@ -1,0 +1,62 @@
+"""Make the tutorial's example data from the model itself (run from the repository root:
+``python examples/tutorial/make_data.py``).
+
+Writes examples/tutorial/snapshots.csv (static poses of the paper's prototype with known
+tip weights and tensions, marker positions with 0.5 mm noise) and
+examples/tutorial/readings.csv (a 6 s log at 50 Hz: tendon t1 pulled while a tip weight of
+0, 10 and 20 gF hangs on the tip; 0.1 mm and 0.8 % sensor noise). The "true" robot is
+examples/paper_prototype.toml.
+"""
+
+import csv
+
+import numpy as np
+
+from tendonsense import load_robot
+from tendonsense.forward import solve
+from tendonsense.tracking import solve_batch
+
+GF = 9.80665e-3
+robot = load_robot("examples/paper_prototype.toml")
+rng = np.random.default_rng(12)
+
+# --- snapshots: weights at the tip without tension, then tensions without weight
+poses = [({}, 0.0), ({}, 5.0), ({}, 10.0), ({}, 20.0),
+         ({"t1": 1.0}, 0.0), ({"t1": 2.0}, 0.0), ({"t1": 3.0}, 0.0),
+         ({"t2": 2.0}, 0.0), ({"t3": 2.0}, 0.0), ({"t1": 2.0}, 10.0)]
+header = ([f"tension_{t}" for t in robot.tendon_names] + ["load_X", "load_fx", "load_fy", "load_fz"]
+          + [f"marker_{m}_{a}" for m in robot.marker_names for a in "xyz"])
+with open("examples/tutorial/snapshots.csv", "w", newline="") as fh:
+    w = csv.writer(fh)
+    w.writerow(header)
+    for tensions, grams in poses:
+        load = [(0.25, (0.0, 0.0, -grams * GF))] if grams else []
+        res = solve(robot, tensions, load)
+        assert res.converged
+        row = [tensions.get(t, 0.0) for t in robot.tendon_names]
+        row += [0.25, 0.0, 0.0, round(-grams * GF, 6)] if grams else ["", "", "", ""]
+        row += [round(float(v), 5) for m in robot.marker_names
+                for v in res.markers[m] + rng.normal(0, 5e-4, 3)]
+        w.writerow(row)
+
+# --- a readings log: t1 pulled from 1 N to 3 N and back, a tip weight of 0 / 10 / 20 gF
+n, rate = 300, 50.0
+time = np.arange(n) / rate
+T1 = 2.0 - np.cos(2 * np.pi * time / 6.0)
+grams = np.where(time < 2, 0.0, np.where(time < 4, 10.0, 20.0))
+out = solve_batch(robot, {"t1": T1}, [(0.25, np.stack([0 * T1, 0 * T1, -grams * GF], 1))])
+assert out.converged.all()
+y = out.displacements["t1"] + rng.normal(0, 1e-4, n)
+T = T1 * (1 + rng.normal(0, 0.025 / 3, n))
+with open("examples/tutorial/readings.csv", "w", newline="") as fh:
+    w = csv.writer(fh)
+    w.writerow(["time", "tension_t1", "displacement_t1"])
+    for k in range(n):
+        w.writerow([f"{time[k]:.2f}", f"{T[k]:.5f}", f"{y[k]:.6f}"])
+with open("examples/tutorial/applied_weight.csv", "w", newline="") as fh:
+    w = csv.writer(fh)
+    w.writerow(["time", "applied_N"])
+    for k in range(n):
+        w.writerow([f"{time[k]:.2f}", f"{grams[k] * GF:.6f}"])
+print("wrote examples/tutorial/snapshots.csv, examples/tutorial/readings.csv, "
+      "examples/tutorial/applied_weight.csv")
