@@ -98,3 +98,23 @@ def test_elements_basis_follows_the_strain_jumps_at_the_disks(prototype, element
         global_misfit.append(max(abs(plain.displacements[k] - v) for k, v in lengths.items()))
     assert np.median(round_trip) < 3e-3
     assert min(global_misfit) > 2e-5  # the same check fails the global basis
+
+
+def test_location_of_a_force_between_the_disks(prototype, element_references):
+    """Issue 10: with the elements basis, where a force acts between the disks (and how hard)
+    from the three tendon readings of the independent BVP alone."""
+    from tendonsense.estimation import PointForceUnknown, estimate
+
+    T, refs = element_references
+    elements = prototype.replace(
+        strain=(("torsion", 0), ("bending_y", 2), ("bending_z", 2), ("elongation", 1)),
+        elements=tuple(np.linspace(0.0, 0.25, 9)[1:-1]))
+    f = np.array([0.0, 0.2, -0.6])
+    X_err, mag_err = [], []
+    for X, (_, lengths) in refs.items():
+        est = estimate(elements, lengths, T, [PointForceUnknown(None, tuple(f))])
+        assert est.converged, X
+        X_err.append(abs(est.extra["locations"][0] - X))
+        mag_err.append(abs(est.magnitudes[0] / np.linalg.norm(f) - 1))
+    assert np.median(X_err) < 0.010, X_err
+    assert np.median(mag_err) < 0.05, mag_err

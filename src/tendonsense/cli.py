@@ -10,6 +10,7 @@ import argparse
 import csv
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -65,7 +66,9 @@ def _common(p: argparse.ArgumentParser):
     p.add_argument("--json", action="store_true",
                    help="print the result as one JSON object instead of text")
     p.add_argument("--plot", metavar="SHAPE.png",
-                   help="also draw the rod's 3-D shape, its markers and forces into a PNG file")
+                   help="also draw the rod's 3-D shape, its markers and forces into a PNG file "
+                        "(and, for a force of unknown location, the misfit over X into "
+                        "SHAPE_location.png)")
 
 
 def _analysis(sub, name, help_text, robot_default):
@@ -181,7 +184,19 @@ def _unknown(text: str):
     from .estimation import GravityUnknown, PointForceUnknown
     if text.strip().lower() == "gravity":
         return GravityUnknown()
-    X, *d = _numbers(4, "X,DX,DY,DZ or gravity")(text)
+    what = "X,DX,DY,DZ (X a number, '?' or A:B) or gravity"
+    where, _, rest = text.partition(",")
+    where = where.strip()
+    try:
+        if where == "?":
+            X = None
+        elif ":" in where:
+            X = tuple(float(v) for v in where.split(":"))
+        else:
+            X = float(where)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    d = _numbers(3, what)(rest)
     try:
         return PointForceUnknown(X, tuple(d))
     except ValueError as exc:
@@ -198,6 +213,12 @@ def _positive(text: str) -> float:
     return v
 
 
+def _beside(path: str, suffix: str) -> str:
+    """``shape.png`` → ``shape_location.png``."""
+    p = Path(path)
+    return str(p.with_name(p.stem + suffix + p.suffix))
+
+
 def _point_forces(args):
     return [(pf[0], pf[1:]) for pf in args.point_force]
 
@@ -209,8 +230,12 @@ def _plot_shape(args, robot, result, unknowns=()):
     from .estimation import PointForceUnknown
     estimated = []
     if result.magnitudes is not None:
-        estimated = [(u.X, result.magnitudes[i] * np.asarray(u.direction))
+        where = result.extra.get("locations") or [None] * len(unknowns)
+        estimated = [(u.X if where[i] is None else where[i],
+                      result.magnitudes[i] * np.asarray(u.direction))
                      for i, u in enumerate(unknowns) if isinstance(u, PointForceUnknown)]
+    if "location_profile" in result.extra:
+        plotting.location_profile(result, _beside(args.plot, "_location"))
     what = {"solve": "shape under the given tensions (forward statics)",
             "fk": "shape for the given tendon length changes (forward kinematics)",
             "estimate": "shape and force estimated from tendon readings"}[args.command]
@@ -337,7 +362,9 @@ def unknown_label(u) -> str:
     """Words for an unknown load, e.g. "force at X = 0.25 m along (0, 0, -1)"."""
     from .estimation import PointForceUnknown
     if isinstance(u, PointForceUnknown):
-        return f"force at X = {u.X:g} m along {_vector(u.direction)}"
+        where = ("somewhere on the rod" if u.X is None else
+                 f"somewhere in X = {u.X[0]:g}:{u.X[1]:g} m" if u.located else f"at X = {u.X:g} m")
+        return f"force {where} along {_vector(u.direction)}"
     return "gravity scale (1 = the robot file's gravity)"
 
 
@@ -368,6 +395,12 @@ def _print_result(result, as_json: bool, title: str, robot, unknowns=()):
             u = unknowns[i] if i < len(unknowns) else None
             label = unknown_label(u) if u is not None else f"magnitude {i + 1}"
             print(f"  {label}: {magnitude_text(u, m, s)}")
+            X = result.extra.get("locations", [None] * (i + 1))[i]
+            if X is not None:
+                sx = result.extra["location_sigma"][i]
+                print(f"    acting at X = {X:.4g} m ± {sx * 1e3:.2g} mm (1 σ)")
+    if result.extra.get("note"):
+        print(f"note: {result.extra['note']}")
     print("tendons (length change: negative = pulled in):")
     for name in result.tensions:
         T, y = result.tensions[name], result.displacements[name]
@@ -421,7 +454,8 @@ def _estimate(args, robot):
         if s.error:
             print(f"tendonsense: {args.readings}: row {s.row} skipped: {s.error}",
                   file=sys.stderr)
-    header, rows = rd.output_rows(robot, samples, results, len(args.unknown))
+    header, rows = rd.output_rows(robot, samples, results, len(args.unknown),
+                                  rd.located(args.unknown))
     rd.write_csv_atomic(args.output, header, rows)
     ok = [r for r in results if r is not None and r.converged]
     summary = {"samples": len(samples), "converged": len(ok),

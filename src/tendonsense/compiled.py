@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
+import threading
 from functools import lru_cache
 from pathlib import Path
 
@@ -56,6 +57,29 @@ def _register() -> bool:
     return True
 
 
+#: held while a program compiles: XLA's serialisation of an executable into the compilation
+#: cache is not safe from two threads at once (batches solve on two threads)
+_COMPILING = threading.RLock()
+
+
+class FirstCallLocked:
+    """A jitted function whose first call per argument signature (the one that compiles)
+    holds :data:`_COMPILING`."""
+
+    def __init__(self, fn):
+        self.fn = fn
+        self.seen: set[str] = set()
+
+    def __call__(self, *args):
+        signature = _signature(args)
+        if signature in self.seen:
+            return self.fn(*args)
+        with _COMPILING:
+            out = jax.block_until_ready(self.fn(*args))
+            self.seen.add(signature)
+        return out
+
+
 class Program:
     """``jax.jit(fn)`` whose traced form is kept on disk between runs (see module doc)."""
 
@@ -68,7 +92,13 @@ class Program:
         signature = _signature(args)
         call = self.loaded.get(signature)
         if call is None:
-            call = self.loaded[signature] = self._load(signature, args)
+            with _COMPILING:
+                call = self.loaded.get(signature)
+                if call is None:
+                    call = self._load(signature, args)
+                    out = jax.block_until_ready(call(*args))
+                    self.loaded[signature] = call
+                    return out
         return call(*args)
 
     def _load(self, signature: str, args):

@@ -10,7 +10,7 @@ equilibrium as an exact constraint (implicit differentiation, no finite differen
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property, lru_cache
 from typing import Mapping, Sequence
 
@@ -29,9 +29,13 @@ from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, shape_outputs, 
 
 @dataclass(frozen=True)
 class PointForceUnknown:
-    """A point force of unknown magnitude (N) along the global unit ``direction`` at ``X``."""
+    """A point force of unknown magnitude (N) along the global unit ``direction`` at ``X``.
 
-    X: float
+    ``X`` is where it acts (m), or, for a force whose location is unknown too, ``None``
+    (anywhere on the rod) or a range ``(A, B)``: the estimate then finds X as well
+    (:attr:`located`), which takes one more measured tendon."""
+
+    X: float | tuple[float, float] | None
     direction: tuple[float, float, float]
 
     def __post_init__(self):
@@ -39,8 +43,21 @@ class PointForceUnknown:
         if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
             raise ValueError(f"unknown force at X = {self.X}: direction must be 3 finite "
                              f"numbers, not all zero")
-        finite("unknown force X", self.X)
+        if isinstance(self.X, (tuple, list)):
+            if len(self.X) != 2:
+                raise ValueError(f"unknown force: a range of X is two numbers, got {self.X!r}")
+            a, b = (finite("unknown force X range", v) for v in self.X)
+            if not a < b:
+                raise ValueError(f"unknown force: the range of X must increase, got {a:g}:{b:g}")
+            object.__setattr__(self, "X", (a, b))
+        elif self.X is not None:
+            object.__setattr__(self, "X", finite("unknown force X", self.X))
         object.__setattr__(self, "direction", tuple(d / np.linalg.norm(d)))
+
+    @property
+    def located(self) -> bool:
+        """Whether X is unknown too."""
+        return not isinstance(self.X, float)
 
 
 @dataclass(frozen=True)
@@ -71,10 +88,37 @@ class Problem:
     known_forces: np.ndarray  # (n_p, 3), zero where an unknown force acts
     load_X: np.ndarray  # (n_p,) known forces, then the unknown ones
     gravity: np.ndarray
+    #: for every located unknown: (index of its load in load_X, (A, B) range of X)
+    located: tuple[tuple[int, tuple[float, float]], ...] = ()
 
     @property
     def n_z(self) -> int:
+        """Extra unknowns of the solver: the magnitudes, then the located forces' X."""
         return self.unknowns.gravity.shape[0]
+
+    @property
+    def n_magnitudes(self) -> int:
+        return self.n_z - len(self.located)
+
+    def fixed(self) -> "Problem":
+        """The problem with every located force held at the X of ``load_X`` (set it first
+        with :meth:`at`)."""
+        n = self.n_magnitudes
+        u = self.unknowns
+        return replace(self, unknowns=Unknowns(u.tensions[:, :n], u.forces[:n], u.gravity[:n],
+                                               u.positions[:0]), located=())
+
+    def at(self, X) -> "Problem":
+        """The problem with the located forces' reference X set to ``X`` (one per located)."""
+        load_X = self.load_X.copy()
+        for (i, _), x in zip(self.located, np.atleast_1d(X)):
+            load_X[i] = x
+        return replace(self, load_X=load_X)
+
+    def locations(self, x) -> np.ndarray:
+        """The located forces' X at the solution ``x = [q; magnitudes; X offsets]``."""
+        offsets = np.asarray(x)[len(x) - len(self.located):] if self.located else []
+        return np.array([self.load_X[i] + o for (i, _), o in zip(self.located, offsets)])
 
     @cached_property
     def rest_lengths(self) -> np.ndarray:
@@ -112,35 +156,45 @@ def problem(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
             raise ValueError(f"displacement {name}: no such tendon (robot has "
                              f"{', '.join(robot.tendon_names) or 'none'})")
     n_a, n_p = len(measured), len(unknowns)
-    if n_a < n_p:
-        raise ValueError(f"{n_p} unknown load magnitude{'s' if n_p > 1 else ''} need at least "
-                         f"{n_p} tendons with measured length and tension; got {n_a} "
-                         f"(n_a >= n_p, eq. 17)")
+    n_loc = sum(isinstance(u, PointForceUnknown) and u.located for u in unknowns)
+    if n_a < n_p + n_loc:
+        where = (f" and {n_loc} unknown location{'s' if n_loc > 1 else ''}" if n_loc else "")
+        raise ValueError(f"{n_p} unknown load magnitude{'s' if n_p > 1 else ''}{where} need at "
+                         f"least {n_p + n_loc} tendons with measured length and tension; got "
+                         f"{n_a} (n_a >= n_p{' + located' if n_loc else ''}, eq. 17)")
     if sum(isinstance(u, GravityUnknown) for u in unknowns) > 1:
         raise ValueError("gravity can be unknown only once")
     X_known, F_known = check_point_forces(robot, point_forces)
     forces = [u for u in unknowns if isinstance(u, PointForceUnknown)]
+    L = robot.rod.length
+    ranges = []
     for u in forces:
-        if not 0.0 <= u.X <= robot.rod.length:
-            raise ValueError(f"unknown force: X = {u.X:g} m is outside the rod "
-                             f"[0, {robot.rod.length:g}]")
+        a, b = (0.0, L) if u.X is None else (u.X if u.located else (u.X, u.X))
+        if not 0.0 <= a <= b <= L:
+            what = f"X = {a:g} m" if a == b else f"the range {a:g}:{b:g} m"
+            raise ValueError(f"unknown force: {what} is outside the rod [0, {L:g}]")
+        ranges.append((a, b))
     n_known = len(X_known)
-    Fz = np.zeros((n_p, n_known + len(forces), 3))
-    az = np.zeros((n_p, 3))
+    Fz = np.zeros((n_p + n_loc, n_known + len(forces), 3))
+    az = np.zeros((n_p + n_loc, 3))
+    Pz = np.zeros((n_loc, n_known + len(forces)))
     gravity = np.array(robot.gravity, float)
-    k = 0
+    k, located = 0, []
     for i, u in enumerate(unknowns):
         if isinstance(u, GravityUnknown):
             az[i] = gravity
             gravity = np.zeros(3)
         else:
             Fz[i, n_known + k] = u.direction
+            if u.located:  # z_{n_p + j} moves the force from its reference X
+                Pz[len(located), n_known + k] = 1.0
+                located.append((n_known + k, ranges[k]))
             k += 1
     F = np.concatenate([F_known, np.zeros((len(forces), 3))])
-    X = np.concatenate([X_known, [u.X for u in forces]])
-    unk = Unknowns(np.zeros((len(robot.tendons), n_p)), Fz, az)
+    X = np.concatenate([X_known, [0.5 * (a + b) for a, b in ranges]])
+    unk = Unknowns(np.zeros((len(robot.tendons), n_p + n_loc)), Fz, az, Pz)
     idx = tuple(robot.tendon_names.index(n) for n in measured)
-    return Problem(robot, model_for(robot), idx, unk, F, X, gravity)
+    return Problem(robot, model_for(robot), idx, unk, F, X, gravity, tuple(located))
 
 
 @lru_cache(maxsize=CACHE_SIZE)
@@ -183,6 +237,7 @@ def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, 
         d = drive._replace(
             forces=drive.forces + jnp.tensordot(jnp.asarray(z), prob.unknowns.forces, axes=1),
             gravity=drive.gravity + jnp.asarray(z) @ prob.unknowns.gravity,
+            load_X=drive.load_X + np.asarray(z)[prob.n_magnitudes:] @ prob.unknowns.positions,
             targets=np.zeros(0))
         res = solve_system(structure, values, (), d, statics_unknowns, q0, budget)
         return res, shape_outputs(structure, values, res.x)[2][sel] - y_meas
@@ -248,26 +303,137 @@ def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Nois
                      ) -> Result:
     """:func:`estimate` on a prepared :func:`problem`; ``values`` overrides the robot file's
     values (e.g. a friction error, :meth:`Model.with_values`) without recompiling; ``budget``
-    bounds the evaluations of each equilibrium solve (:func:`~tendonsense.statics.solve_system`)."""
+    bounds the evaluations of each equilibrium solve (:func:`~tendonsense.statics.solve_system`).
+    With located unknowns ``x0`` is not used: their X is searched over its whole range."""
     robot, model = prob.robot, prob.model
     T = tendon_vector(robot, tensions, "tension")
     y_all = tendon_vector(robot, displacements, "displacement")
     drive = prob.drive(T, y_all[list(prob.measured)])
     values = model.values if values is None else values
-    tol = robot.numerics.tolerance
+    if prob.located:
+        return _locate(prob, drive, values, T, noise, budget)
+    x, converged, iterations, res, misfit = _solve(prob, drive, values, x0, budget)
+    return _result(prob, x, drive, values, T, noise, converged, iterations, res, misfit)
+
+
+def _solve(prob: Problem, drive: Drive, values: Values, x0, budget):
+    """(x, converged, iterations, Newton result, length misfit) of a square or
+    least-squares problem."""
+    model = prob.model
     if len(prob.measured) == prob.n_z:
         res = solve_system(model.structure, values, prob.measured, drive, prob.unknowns, x0,
                            budget)
-        x, converged, iterations, misfit = np.asarray(res.x), bool(res.converged), \
-            int(res.iterations), 0.0
-    else:
-        x, converged, iterations, res, misfit = _least_squares(prob, drive, values, x0, tol,
-                                                               budget)
-    z = x[model.nq:]
+        return np.asarray(res.x), bool(res.converged), int(res.iterations), res, 0.0
+    return _least_squares(prob, drive, values, x0, prob.robot.numerics.tolerance, budget)
+
+
+def _result(prob: Problem, x, drive, values, T, noise, converged, iterations, res, misfit,
+            **extra) -> Result:
+    n = prob.n_magnitudes
     sens, sigma = _uncertainty(prob, x, drive, values, T, noise)
-    return make_result(model, x, T, NewtonResult(x, converged, iterations, res.residual, 0),
-                       magnitudes=z, sigma=sigma, sensitivity=sens,
-                       extra={"x": x, "length_misfit": misfit})
+    z = x[prob.model.nq:]
+    return make_result(prob.model, x, T, NewtonResult(x, converged, iterations, res.residual, 0),
+                       magnitudes=z[:n], sigma=sigma[:n],
+                       sensitivity={k: v[:n] for k, v in sens.items()},
+                       extra={"x": x, "length_misfit": misfit, **_located(prob, x, sigma),
+                              **extra})
+
+
+#: points of the misfit profile over X for one located force (per located force for two)
+PROFILE_POINTS = (21, 9)
+
+#: relative Gauss–Newton step at which a profile point's magnitudes count as found
+PROFILE_STEP = 1e-3
+
+#: a location whose 1-σ band exceeds this fraction of the rod length is poorly determined
+POOR_LOCATION = 0.1
+
+
+def _locate(prob: Problem, drive: Drive, values: Values, T, noise: Noise, budget) -> Result:
+    """Located unknowns: a profile of the least-squares length misfit over X (each point a
+    warm-started Gauss–Newton solve of the magnitudes on the compiled tracker), then Newton /
+    Gauss–Newton on (q, magnitudes, X) from the best point. A minimum at the end of a range is
+    reported there, the magnitudes solved with X held at that end."""
+    from .tracking import tracker  # the fast path stands on this module
+
+    model, n_loc = prob.model, len(prob.located)
+    if n_loc > len(PROFILE_POINTS):
+        raise ValueError(f"at most {len(PROFILE_POINTS)} forces of unknown location, "
+                         f"got {n_loc}")
+    # from the tip end down: a force at the base moves nothing, its magnitude undetermined
+    axes = [np.linspace(b, a, PROFILE_POINTS[n_loc - 1]) for _, (a, b) in prob.located]
+    grid = np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
+    if n_loc == 2:  # a serpentine path: neighbours warm-start each other
+        m = len(axes[1])
+        grid = grid.reshape(-1, m, 2)
+        grid[1::2] = grid[1::2, ::-1]
+        grid = grid.reshape(-1, 2)
+    fixed = prob.fixed()
+    drives = [prob.at(X).drive(drive.tensions, drive.targets) for X in grid]
+    stacked = jax.tree_util.tree_map(lambda *a: jnp.stack([jnp.asarray(v) for v in a]), *drives)
+    first, converged, *_ = _solve(prob.at(grid[0]).fixed(), drives[0], values, None, budget)
+    tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.asarray(T) != 0))))
+    track = tracker(model.structure, prob.measured, fixed.n_z, tcols, 4, PROFILE_STEP)
+    tr = jax.device_get(track(jnp.asarray(first), stacked, fixed.unknowns, values, {}))
+    sel = list(prob.measured)
+    misfit = np.where(tr.converged, np.sqrt(np.mean(
+        (tr.lengths[:, sel] - np.asarray(drive.targets)) ** 2, axis=1)), np.nan)
+    profile = {"X": grid[:, 0] if n_loc == 1 else grid, "misfit": misfit}
+    if not np.isfinite(misfit).any():
+        x = np.concatenate([first, np.zeros(n_loc)])
+        return _result(prob.at(grid[0]), x, drives[0], values, T, noise, False, 0,
+                       NewtonResult(x, False, 0, np.inf, 0), np.inf,
+                       note="no point of the location profile converged",
+                       location_profile=profile)
+    best = int(np.nanargmin(misfit))
+    here = prob.at(grid[best])
+    d_here = here.drive(drive.tensions, drive.targets)
+    x0 = np.concatenate([tr.x[best], np.zeros(n_loc)])
+    x, converged, iterations, res, length_misfit = _solve(here, d_here, values, x0, budget)
+    X = here.locations(x)
+    lo, hi = np.array([r for _, r in prob.located]).T
+    span = hi - lo
+    inside = np.all((X >= lo - 1e-9 * span) & (X <= hi + 1e-9 * span))
+    notes = []
+    if converged and inside:  # the same state, referred to the estimated X
+        here = prob.at(X)
+        d_here = here.drive(drive.tensions, drive.targets)
+        x = np.concatenate([x[:-n_loc], np.zeros(n_loc)])
+    else:
+        # the minimum lies at an end of a range (or the refinement failed): hold X there
+        X = np.clip(X if np.all(np.isfinite(X)) else grid[best], lo, hi)
+        at_end = [f"{x_:g} m" for x_, a, b in zip(X, lo, hi) if x_ in (a, b)]
+        if at_end:
+            notes.append(f"location at the end of its range ({', '.join(at_end)}): the "
+                         f"misfit keeps falling beyond it")
+        here = prob.at(X)
+        d_here = here.drive(drive.tensions, drive.targets)
+        xf, converged, iterations, res, length_misfit = _solve(
+            here.fixed(), d_here, values, tr.x[best], budget)
+        x = np.concatenate([xf, np.zeros(n_loc)])
+    result = _result(here, x, d_here, values, T, noise, converged, iterations, res,
+                     length_misfit, location_profile=profile)
+    poor = [f"{s:.3g} m" for s in result.extra["location_sigma"] if s is not None
+            and not s <= POOR_LOCATION * prob.robot.rod.length]
+    if poor:
+        notes.append(f"location poorly determined: 1-σ band {', '.join(poor)} is more than "
+                     f"{POOR_LOCATION:.0%} of the rod length")
+    if notes:
+        result.extra["note"] = "; ".join(filter(None, [result.extra.get("note"), *notes]))
+    return result
+
+
+def _located(prob: Problem, x, sigma) -> dict:
+    """``locations`` and ``location_sigma``: one entry per unknown, None where X is known."""
+    X, s = prob.locations(x), np.asarray(sigma)[prob.n_magnitudes:]
+    rows = np.asarray(prob.unknowns.forces)[:prob.n_magnitudes].any(axis=2)  # (n_z, n_loads)
+    index = {i: k for k, (i, _) in enumerate(prob.located)}
+    out = {"locations": [], "location_sigma": []}
+    for row in rows:
+        k = next((index[i] for i in np.flatnonzero(row) if i in index), None)
+        out["locations"].append(None if k is None else float(X[k]))
+        out["location_sigma"].append(None if k is None else float(s[k]))
+    return out
 
 
 def _uncertainty(prob: Problem, x, drive, values, T, noise: Noise):

@@ -62,18 +62,11 @@ def poses(values: Values, q, *points: PointSet):
     ``points``, at those points — no Jacobians: generalized forces are taken as the pull-back
     of forces through this map (:func:`force_cotangent`), so the cost of an exact Jacobian
     grows with the coordinates, not their square."""
-    n = values.h.shape[0]
-    sets = [PointSet(None, values.h, values.Phi1, values.Phi2), *points]
-    E = _vexp(omega(q, *(jnp.concatenate([getattr(p, f) for p in sets])
-                         for f in ("h", "Phi1", "Phi2"))))
+    # each set on its own: points at a traced X must not make the grid's basis a variable
+    E = _vexp(omega(q, values.h, values.Phi1, values.Phi2))
     eye = jnp.eye(4, dtype=E.dtype)[None]
-    g = values.base @ jnp.concatenate([eye, jax.lax.associative_scan(jnp.matmul, E[:n])])
-    out, k = [g], n
-    for p in points:
-        m = p.h.shape[0]
-        out.append(g[p.start] @ E[k:k + m])
-        k += m
-    return tuple(out)
+    g = values.base @ jnp.concatenate([eye, jax.lax.associative_scan(jnp.matmul, E)])
+    return (g, *(g[p.start] @ _vexp(omega(q, p.h, p.Phi1, p.Phi2)) for p in points))
 
 
 def end_stretches(values: Values, q):

@@ -52,10 +52,13 @@ class OnlineEstimator:
         self._carry = None
         self._x = None  # last good [q; z]
         self._eval_cost = None  # s per evaluation with a Jacobian, measured
+        self._ref = prob  # located forces: the problem at the last estimated X
+        self._search_cost = None  # s per search over X, measured
+        self._failures = 0  # samples failed in a row
 
     def reset(self):
         """Forget the last good sample: the next one starts from the straight rod."""
-        self._carry, self._x = None, None
+        self._carry, self._x, self._ref, self._failures = None, None, self.problem, 0
 
     def update(self, displacements: Mapping[str, float],
                tensions: Mapping[str, float]) -> SampleEstimate:
@@ -67,9 +70,13 @@ class OnlineEstimator:
             T, y = self._readings(displacements, tensions)
         except ValueError as exc:
             return self._failed(f"bad value: {exc}")
-        drive = prob.drive(T, y[list(prob.measured)])
+        targets = y[list(prob.measured)]
+        drive = self._ref.drive(T, targets)
         model = prob.model
         values, unknowns = model.values, prob.unknowns
+        if prob.located and self._x is None:  # no X yet: search its whole range
+            return self._after_rescue(T, targets, displacements, tensions, None, 0,
+                                      "no estimate of the location", None)
         if self._carry is None:
             x0 = np.zeros(model.nq + prob.n_z)
             self._carry = self._init(x0, drive, {}, unknowns, values)
@@ -78,36 +85,75 @@ class OnlineEstimator:
                 self._rescue(drive, displacements, tensions, 1)  # load its program now
         carry, row = self._step(self._carry, drive, {}, unknowns, values)
         row = self._unpack(row)
-        if row.converged:
-            self._carry, self._x = carry, row.x
+        outside = self._outside(row.x)
+        if row.converged and not outside:
+            self._carry, self._x, self._failures = carry, row.x, 0
             return self._estimate(row, T, int(row.iterations))
-        note = INADMISSIBLE if not row.admissible else "did not converge within the work budget"
+        note = (INADMISSIBLE if not row.admissible else outside if row.converged
+                else "did not converge within the work budget")
+        self._failures += 1
         left = self.time_limit - (time.perf_counter() - start)
+        if prob.located:
+            # a search over X when it fits in the time left, or after five failures in a row
+            if (self.rescue_budget is None and self._search_cost is not None
+                    and left < self._search_cost and self._failures < 5):
+                return self._failed(note, row)
+            return self._after_rescue(T, targets, displacements, tensions, self.rescue_budget,
+                                      int(row.iterations), note, row)
         # evaluations that fit in the time left, less three for the step that follows a rescue
         budget = (None if self._x is None else self.rescue_budget if self.rescue_budget
                   else int(left / max(self._eval_cost, 1e-6)) - 3)
         if budget is not None and budget < 3:
             return self._failed(note, row)
-        x, converged, evaluations = self._rescue(drive, displacements, tensions, budget)
+        return self._after_rescue(T, targets, displacements, tensions, budget,
+                                  int(row.iterations), note, row)
+
+    def _after_rescue(self, T, targets, displacements, tensions, budget, iterations, note,
+                      row):
+        """A rescue solve, then one step of the fast path from it (which also gives the
+        sensitivities): the estimate, or a failed sample."""
+        prob, model = self.problem, self.problem.model
+        values, unknowns = model.values, prob.unknowns
+        t0 = time.perf_counter()
+        x, converged, evaluations = self._rescue(
+            self._ref.drive(T, targets), displacements, tensions, budget)
+        if prob.located:
+            self._search_cost = time.perf_counter() - t0
         if not converged:
             return self._failed(note, row)
+        drive = self._ref.drive(T, targets)
         carry = self._init(x, drive, {}, unknowns, values)
+        if self._eval_cost is None:
+            self._carry = carry
+            self._eval_cost = self._time_jacobian(drive)
         carry, row2 = self._step(carry, drive, {}, unknowns, values)
         row2 = self._unpack(row2)
-        if not row2.converged:
+        if not row2.converged or self._outside(row2.x):
             return self._failed(INADMISSIBLE if not row2.admissible else note, row2)
-        self._carry, self._x = carry, row2.x
-        return self._estimate(row2, T, int(row.iterations) + evaluations + int(row2.iterations))
+        self._carry, self._x, self._failures = carry, row2.x, 0
+        return self._estimate(row2, T, iterations + evaluations + int(row2.iterations))
+
+    def _outside(self, x) -> str:
+        """Why located forces at ``x`` are no estimate (an X outside its range), or ''."""
+        if not self.problem.located:
+            return ""
+        X = self._ref.locations(x)
+        for (_, (a, b)), x_ in zip(self.problem.located, X):
+            if not a - 1e-9 <= x_ <= b + 1e-9:
+                return f"location {x_:.4g} m left its range {a:g}:{b:g} m"
+        return ""
 
     def _rescue(self, drive, displacements, tensions, budget):
         """A solve from the straight rod, with load continuation, within ``budget``
         evaluations: (x, converged, evaluations)."""
         prob = self.problem
-        if self._square:
+        if self._square and not prob.located:
             res = solve_system(prob.model.structure, prob.model.values, prob.measured, drive,
                                prob.unknowns, None, budget)
             return res.x, bool(res.converged), int(res.evaluations)
         r = estimate_problem(prob, displacements, tensions, self.noise, None, budget=budget)
+        if prob.located and r.converged:  # its x is referred to the estimated X
+            self._ref = prob.at([v for v in r.extra["locations"] if v is not None])
         return r.extra["x"], r.converged, int(r.iterations)
 
     def _time_jacobian(self, drive) -> float:
@@ -150,9 +196,10 @@ class OnlineEstimator:
         prob, noise = self.problem, self.noise
         nq = prob.model.nq
         sigma = band(row.dx_dm[nq:, :], len(prob.measured), T[list(self._tcols)], noise)
-        return SampleEstimate(row.x[nq:], sigma,
+        n = prob.n_magnitudes
+        return SampleEstimate(row.x[nq:nq + n], sigma[:n],
                               dict(zip(prob.robot.marker_names, row.markers)), True, iterations,
-                              row.x)
+                              row.x, "", self._ref.locations(row.x), sigma[n:])
 
     def _failed(self, note: str, row=None) -> SampleEstimate:
         if row is None:

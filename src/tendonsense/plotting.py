@@ -163,3 +163,30 @@ def comparison(table: dict[str, list], path):
     ax.set_title("Force error of each rod model on the paper's experiments")
     ax.legend()
     return _save(fig, path)
+
+
+def location_profile(result, path):
+    """The tendon-length misfit over the X of a force of unknown location (each point the best
+    magnitudes with the force held there), the estimate and its 1-σ band, as a PNG."""
+    prof = result.extra["location_profile"]
+    X, misfit = np.asarray(prof["X"]), np.asarray(prof["misfit"]) * 1e6
+    if X.ndim != 1:
+        raise ValueError("a misfit profile is drawn for one force of unknown location")
+    loc = [v for v in result.extra["locations"] if v is not None][0]
+    sig = [v for v in result.extra["location_sigma"] if v is not None][0]
+    order = np.argsort(X)
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    ax.plot(X[order] * 1e3, misfit[order], "o-", color="tab:blue", ms=3,
+            label="best fit with the force held at X")
+    ax.axvspan((loc - sig) * 1e3, (loc + sig) * 1e3, color="tab:red", alpha=0.15,
+               label="estimate ± 1 σ")
+    ax.axvline(loc * 1e3, color="tab:red", label=f"estimate X = {loc * 1e3:.1f} mm")
+    ax.set_xlim(X.min() * 1e3, X.max() * 1e3)
+    ax.set_xlabel("X where the force acts (mm from the base)")
+    ax.set_ylabel("RMS tendon-length misfit (µm)")
+    ax.set_title("Where does the force act? Tendon-length misfit over X")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

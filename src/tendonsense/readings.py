@@ -166,7 +166,7 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
     online = OnlineEstimator(problem(robot, columns.measured, unknowns, point_forces), noise)
     writer = csv.writer(out)
     with_shape = bool(columns.markers)
-    writer.writerow(output_header(robot, len(unknowns), with_shape))
+    writer.writerow(output_header(robot, len(unknowns), with_shape, located(unknowns)))
     out.flush()
     rows = good = 0
     for i, raw in enumerate(reader, start=1):
@@ -176,46 +176,57 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
         r = None if s.error else online.update(s.displacements, s.tensions)
         if r is None and on_skip:
             on_skip(s)
-        writer.writerow(output_row(robot, s, r, len(unknowns), with_shape))
+        writer.writerow(output_row(robot, s, r, len(unknowns), with_shape, located(unknowns)))
         out.flush()
         rows, good = rows + 1, good + bool(r is not None and r.converged)
     return rows, good
 
 
-def output_header(robot: Robot, n_unknowns: int, with_shape: bool) -> list[str]:
-    """Columns of OUT.csv (uncertainty included)."""
+def located(unknowns: Sequence[Unknown]) -> tuple[int, ...]:
+    """Indices of the unknowns whose X is unknown too."""
+    return tuple(i for i, u in enumerate(unknowns) if getattr(u, "located", False))
+
+
+def output_header(robot: Robot, n_unknowns: int, with_shape: bool,
+                  located: Sequence[int] = ()) -> list[str]:
+    """Columns of OUT.csv (uncertainty included; ``located``: indices of located unknowns)."""
     return (["row", "time"] + [f"magnitude_{i + 1}" for i in range(n_unknowns)]
             + [f"sigma_{i + 1}" for i in range(n_unknowns)]
+            + [f"location{s}_{i + 1}" for i in located for s in ("", "_sigma")]
             + [f"marker_{m}_{a}" for m in robot.marker_names for a in AXES] + ["converged"]
             + (["shape_rmse"] if with_shape else []) + ["note"])
 
 
 def output_row(robot: Robot, s: Sample, r: SampleEstimate | None, n_unknowns: int,
-               with_shape: bool) -> list:
+               with_shape: bool, located: Sequence[int] = ()) -> list:
     """One row of OUT.csv for sample ``s`` and its estimate ``r`` (None: skipped)."""
     markers = robot.marker_names
     t = "" if s.time is None else repr(s.time)
+    blank = [""] * (2 * n_unknowns + 2 * len(located) + 3 * len(markers))
     if r is None:
-        return ([s.row, t] + [""] * (2 * n_unknowns + 3 * len(markers)) + ["false"]
-                + ([""] if with_shape else []) + [f"skipped: {s.error}"])
+        return ([s.row, t] + blank + ["false"] + ([""] if with_shape else [])
+                + [f"skipped: {s.error}"])
     if not r.converged:
-        return ([s.row, t] + [""] * (2 * n_unknowns + 3 * len(markers)) + ["false"]
-                + ([""] if with_shape else []) + [r.note or "did not converge"])
+        return ([s.row, t] + blank + ["false"] + ([""] if with_shape else [])
+                + [r.note or "did not converge"])
     row = [s.row, t] + [repr(float(v)) for v in r.magnitudes] + \
           [repr(float(v)) for v in r.sigma]
+    row += [repr(float(v)) for k in range(len(located))
+            for v in (r.locations[k], r.location_sigma[k])]
     row += [repr(float(v)) for m in markers for v in r.markers[m]]
     row.append("true")
     if with_shape:
         row.append(repr(shape_rmse(r, s.markers)) if s.markers else "")
-    row.append("")
+    row.append(r.note)
     return row
 
 
-def output_rows(robot: Robot, samples, results, n_unknowns: int):
+def output_rows(robot: Robot, samples, results, n_unknowns: int, located: Sequence[int] = ()):
     """Header and rows of OUT.csv."""
     with_shape = any(s.markers for s in samples)
-    return (output_header(robot, n_unknowns, with_shape),
-            [output_row(robot, s, r, n_unknowns, with_shape) for s, r in zip(samples, results)])
+    return (output_header(robot, n_unknowns, with_shape, located),
+            [output_row(robot, s, r, n_unknowns, with_shape, located)
+             for s, r in zip(samples, results)])
 
 
 def shape_rmse(result, measured: dict[str, np.ndarray]) -> float:

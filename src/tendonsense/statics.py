@@ -49,16 +49,18 @@ DRIVE_NAMES = ("tensions", "forces", "load_X", "gravity", "targets")
 
 class Unknowns(NamedTuple):
     """How the extra unknowns z enter: tensions ``T += A z``, forces ``F += Σ z_k F_k``,
-    gravity ``a += Σ z_k a_k``."""
+    gravity ``a += Σ z_k a_k``; the last ``n_loc`` of them move where the point loads act,
+    ``X += Σ z_k P_k``."""
 
     tensions: jax.Array  # (n_t, n_z)
     forces: jax.Array  # (n_z, n_p, 3)
     gravity: jax.Array  # (n_z, 3)
+    positions: jax.Array  # (n_loc, n_p)
 
     @staticmethod
     def none(n_tendons: int, n_loads: int = 0, n_z: int = 0) -> "Unknowns":
         return Unknowns(np.zeros((n_tendons, n_z)), np.zeros((n_z, n_loads, 3)),
-                        np.zeros((n_z, 3)))
+                        np.zeros((n_z, 3)), np.zeros((0, n_loads)))
 
 
 class Terms(NamedTuple):
@@ -78,7 +80,9 @@ def terms(structure: Structure, values: Values, q, z, drive: Drive, unknowns: Un
     Jacobians."""
     T = lam * drive.tensions + unknowns.tensions @ z
     a = lam * drive.gravity + z @ unknowns.gravity
-    sets = [points_at(structure, values, drive.load_X)] if drive.load_X.shape[0] else []
+    n_loc = unknowns.positions.shape[0]
+    X = drive.load_X + z[z.shape[0] - n_loc:] @ unknowns.positions if n_loc else drive.load_X
+    sets = [points_at(structure, values, X)] if drive.load_X.shape[0] else []
 
     def configuration(q):
         grid, *points = poses(values, q, *sets)

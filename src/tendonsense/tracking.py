@@ -12,7 +12,7 @@ steps of iterative refinement against the exact ``R_x`` (JVPs).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Mapping, NamedTuple, Sequence
 
@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import linalg, tendons
+from .compiled import FirstCallLocked
 from .estimation import Noise, Problem, estimate_problem
 from .forward import model_for, tendon_vector
 from .kinematics import poses, positions
@@ -60,7 +61,7 @@ MAX_EVALUATIONS, MAX_JACOBIANS = 60, 6
 
 
 def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
-                tension_columns: tuple[int, ...], refine_every: int):
+                tension_columns: tuple[int, ...], refine_every: int, step_tol: float = 1e-8):
     """``init(x0, d0, p0, unknowns, values) -> Carry`` and
     ``step(carry, d, p, unknowns, values) -> (Carry, Track row)`` of the tracker (pure):
     quasi-Newton for a square system, Gauss–Newton SQP for least squares (n_z < n_a)."""
@@ -213,7 +214,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
             small = num.tolerance * (s + floor)
             z = x[nq:]
             return (jnp.linalg.norm(r[:nq]) <= small) & (
-                (jnp.linalg.norm(dx[nq:]) <= 1e-8 * (jnp.linalg.norm(z) + 1e-6))
+                (jnp.linalg.norm(dx[nq:]) <= step_tol * (jnp.linalg.norm(z) + 1e-6))
                 | (jnp.linalg.norm(r[nq:]) <= small))
 
         J, r, s, rT = linear(guess, d, unknowns, vs)
@@ -229,7 +230,13 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         def body(st):
             xt = st["x"] + st["alpha"] * st["dx"]
             Jt, rt, ts, rTt = linear(xt, d, unknowns, vs)
-            accept = merit(rt) <= (1 - 1e-4 * st["alpha"]) * merit(st["r"])
+            # Armijo on the merit, or a step that restores equilibrium (where the lengths'
+            # misfit is large, e.g. a force tried at the wrong X, the merit alone can refuse
+            # the step to the constrained minimum)
+            rE, rEt = jnp.linalg.norm(st["r"][:nq]), jnp.linalg.norm(rt[:nq])
+            accept = (merit(rt) <= (1 - 1e-4 * st["alpha"]) * merit(st["r"])) | (
+                (rEt <= 0.5 * rE) & (rE > num.tolerance * (st["s"] + floor))
+                & jnp.isfinite(merit(rt)))
             dxt = gauss_newton(Jt, rt)
             new = dict(x=xt, J=Jt, r=rt, s=ts, rT=rTt, dx=dxt, alpha=jnp.asarray(1.0),
                        status=jnp.where(stationary(xt, rt, ts, dxt), 1, 0))
@@ -260,13 +267,15 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
 
 @lru_cache(maxsize=CACHE_SIZE)
 def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
-            tension_columns: tuple[int, ...], refine_every: int = 1):
+            tension_columns: tuple[int, ...], refine_every: int = 1, step_tol: float = 1e-8):
     """Compiled ``track(x0, drives, unknowns, values, varied) -> Track`` for a square system
-    (``len(measured) == n_z``) or least squares (more measured tendons); ``drives`` is a :class:`Drive` and ``varied`` a dict of values
-    by name (:data:`~tendonsense.model.VALUE_NAMES`, may be empty), both with a leading sample
-    axis. The sensitivity columns are the measured lengths, then the tensions of the tendons
-    ``tension_columns``."""
-    init, step = _sample_fns(structure, measured, n_z, tension_columns, refine_every)
+    (``len(measured) == n_z``) or least squares (more measured tendons); ``drives`` is a
+    :class:`Drive` and ``varied`` a dict of values by name
+    (:data:`~tendonsense.model.VALUE_NAMES`, may be empty), both with a leading sample axis.
+    The sensitivity columns are the measured lengths, then the tensions of the tendons
+    ``tension_columns``. A least-squares sample is stationary when its Gauss–Newton step in z
+    is below ``step_tol`` relative (a coarse value suits a profile that is refined later)."""
+    init, step = _sample_fns(structure, measured, n_z, tension_columns, refine_every, step_tol)
 
     def track(x0, drives, unknowns, values, varied):
         d0, p0 = jax.tree_util.tree_map(lambda a: a[0], (drives, varied))
@@ -275,7 +284,7 @@ def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
                               (drives, varied))
         return out
 
-    return jax.jit(track)
+    return FirstCallLocked(jax.jit(track))
 
 
 @lru_cache(maxsize=CACHE_SIZE)
@@ -321,15 +330,18 @@ class SampleEstimate:
     iterations: int
     x: np.ndarray
     note: str = ""  # why a sample is not converged
+    locations: np.ndarray = field(default_factory=lambda: np.zeros(0))  # located forces' X, m
+    location_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @staticmethod
     def failed(prob: Problem, note: str, x=None, iterations: int = 0) -> "SampleEstimate":
         """A sample that has no estimate (not-a-number magnitudes and markers)."""
-        nan = np.full(prob.n_z, np.nan)
+        nan = np.full(prob.n_magnitudes, np.nan)
         x = np.full(prob.model.nq + prob.n_z, np.nan) if x is None else x
+        loc = np.full(len(prob.located), np.nan)
         return SampleEstimate(nan, nan.copy(), {m: np.full(3, np.nan)
                                                 for m in prob.robot.marker_names},
-                              False, iterations, x, note)
+                              False, iterations, x, note, loc, loc.copy())
 
 
 #: evaluations of the solve from the straight rod that a sample the fast path could not
@@ -353,6 +365,17 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
     chunk."""
     robot, model = prob.robot, prob.model
     n = len(displacements)
+    if prob.located:  # sample by sample: X searched first, then followed (and after failures)
+        if values:
+            raise ValueError("values per sample are not available with located forces")
+        from .online import OnlineEstimator
+        online = OnlineEstimator(prob, noise, rescue_budget=RESCUE_BUDGET)
+        out = []
+        for k, (d, t) in enumerate(zip(displacements, tensions)):
+            out.append(online.update(d, t))
+            if progress and ((k + 1) % chunk == 0 or k + 1 == n):
+                progress(k + 1, n)
+        return out
     for what, readings in (("tension", tensions), ("displacement", displacements)):
         for name in {name for r in readings for name in r}:
             if name not in robot.tendon_names:
@@ -415,8 +438,11 @@ def band(dz_dm: np.ndarray, n_lengths: int, tensions: np.ndarray, noise: Noise) 
 
 def _from_result(r) -> SampleEstimate:
     note = "" if r.converged else r.extra.get("note", "did not converge")
+    located = [k for k, v in enumerate(r.extra.get("locations", [])) if v is not None]
     return SampleEstimate(np.asarray(r.magnitudes), np.asarray(r.sigma), dict(r.markers),
-                          bool(r.converged), int(r.iterations), np.asarray(r.extra["x"]), note)
+                          bool(r.converged), int(r.iterations), np.asarray(r.extra["x"]), note,
+                          np.array([r.extra["locations"][k] for k in located]),
+                          np.array([r.extra["location_sigma"][k] for k in located]))
 
 
 def _principal_order(m: np.ndarray) -> np.ndarray:
