@@ -38,6 +38,9 @@ class OnlineEstimator:
     Overdetermined problems (more measured tendons than unknowns) take Gauss–Newton SQP
     steps on the same fast path; their rescue is the least-squares solver of
     :mod:`tendonsense.estimation` with the same evaluation budget per equilibrium solve.
+    A force of unknown location is searched over its range on the first sample, then followed
+    sample to sample; a sample that loses it (no convergence, or X outside its range) gets a
+    new search when the time left allows one, or after five failures in a row.
     """
 
     def __init__(self, prob: Problem, noise: Noise = Noise(), time_limit: float = 0.02,
