@@ -44,7 +44,7 @@ def test_fits_back_exactly_without_noise(truth):
     assert fit.converged
     for k, v in {"young_modulus": 1e6, "density": 1340.0, "friction": 0.4}.items():
         assert fit.parameters[k] == pytest.approx(v, rel=1e-4)
-    assert fit.marker_rmse < 1e-6 < fit.initial_rmse
+    assert fit.marker_rmse < 1e-6 < fit.initial_marker_rmse
 
 
 def test_fits_within_3_percent_with_half_millimetre_noise(truth):
@@ -120,5 +120,5 @@ def test_soromox_tentacle_first_session():
     snaps = read_snapshots(ROOT / "examples" / "soromox_snapshots.csv", robot)[:8]
     fit = identify(robot.with_parameters(young_modulus=5.05e5, density=1500.0), snaps)
     assert fit.converged
-    assert fit.marker_rmse < 0.02 < fit.initial_rmse
+    assert fit.marker_rmse < 0.02 < fit.initial_marker_rmse
     assert 2e5 < fit.parameters["young_modulus"] < 6e5

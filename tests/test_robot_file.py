@@ -5,7 +5,7 @@ import pytest
 
 from conftest import PROTOTYPE, ROOT
 from tendonsense.forward import solve
-from tendonsense.robot import RobotFileError, load_robot, parse_robot, robot_to_toml
+from tendonsense.robot import Mass, RobotFileError, load_robot, parse_robot, robot_to_toml
 
 TEXT = PROTOTYPE.read_text()
 
@@ -93,3 +93,61 @@ def test_elements_in_the_strain_table(tmp_path):
         path.write_text(text.replace("[strain]", f"[strain]\nelements = {bad}"))
         with pytest.raises(RobotFileError, match=why):
             load_robot(path)
+
+
+MASS = '\n[[mass]]\nname = "ring"\nX = 0.15\nmass = 0.02\n'
+
+
+@pytest.mark.parametrize("table,expect", [
+    ('\n[[mass]]\nname = "ring"\nX = 0.3\nmass = 0.02\n', "mass[0].X"),
+    ('\n[[mass]]\nname = "ring"\nX = 0.1\nmass = 0.0\n', "mass[0].mass"),
+    ('\n[[mass]]\nname = "ring"\nX = 0.1\n', "mass[0].mass: missing"),
+    ('\n[[mass]]\nname = "ring"\nX = 0.1\nmass = 0.01\noffset = [0, 1]\n', "mass[0].offset"),
+    (MASS + MASS, "two masss"),
+])
+def test_bad_masses_name_key_and_reason(tmp_path, table, expect):
+    p = tmp_path / "r.toml"
+    p.write_text(TEXT + table)
+    with pytest.raises(RobotFileError) as e:
+        load_robot(p)
+    assert expect in str(e.value)
+
+
+def test_lumped_masses_are_their_weights_as_point_forces(prototype, tmp_path):
+    """Issue 11: a rigid lumped mass gives the same result as the equivalent point force (to
+    1e-9 m); an offset mass adds the moment of its weight about the centre line."""
+    p = tmp_path / "r.toml"
+    p.write_text(TEXT + MASS + '\n[[mass]]\nname = "tip sensor"\nX = 0.25\nmass = 0.005\n')
+    robot = load_robot(p)
+    assert load_robot(p) == robot and len(robot.masses) == 2
+    again = tmp_path / "again.toml"
+    again.write_text(robot_to_toml(robot))
+    assert load_robot(again) == robot
+    g = np.array(robot.gravity)
+    T = {"t1": 1.0, "t3": 0.5}
+    with_masses = solve(robot, T, [(0.07, (0.0, 0.1, 0.0))])
+    as_forces = solve(prototype, T, [(0.07, (0.0, 0.1, 0.0)), (0.15, tuple(0.02 * g)),
+                                     (0.25, tuple(0.005 * g))])
+    assert with_masses.converged and as_forces.converged
+    for k in with_masses.markers:
+        assert np.linalg.norm(with_masses.markers[k] - as_forces.markers[k]) < 1e-9
+    for k in with_masses.displacements:
+        assert abs(with_masses.displacements[k] - as_forces.displacements[k]) < 1e-9
+    plain = solve(prototype, T, [(0.07, (0.0, 0.1, 0.0))])
+    assert np.linalg.norm(plain.markers["tip"] - with_masses.markers["tip"]) > 1e-3
+    # small deflections (a stiff rod): the weight of a mass 2 cm above the centre line acts
+    # as at its X; 2 cm ahead of it, nearly as a point force 2 cm further out (less the
+    # bending of those 2 cm, which the couple of the offset weight does not load)
+    stiff = prototype.with_parameters(young_modulus=1e9)
+    sag = {}
+    for name, X, offset in (("above", 0.15, (0.0, 0.0, 0.02)), ("ahead", 0.15, (0.02, 0.0, 0.0)),
+                            ("at 0.15", 0.15, None), ("at 0.17", 0.17, None)):
+        if offset is None:
+            res = solve(stiff, {}, [(X, tuple(0.02 * g))])
+        else:
+            res = solve(stiff.replace(masses=(Mass("ring", X, 0.02, offset),)), {})
+        sag[name] = res.markers["tip"] - solve(stiff, {}).markers["tip"]
+    assert np.linalg.norm(sag["above"] - sag["at 0.15"]) < 1e-3 * np.linalg.norm(sag["at 0.15"])
+    assert np.linalg.norm(sag["ahead"] - sag["at 0.17"]) < 0.05 * np.linalg.norm(sag["at 0.17"])
+    assert np.linalg.norm(sag["ahead"]) < np.linalg.norm(sag["at 0.17"])
+    assert np.linalg.norm(sag["ahead"] - sag["at 0.15"]) > 0.1 * np.linalg.norm(sag["at 0.15"])

@@ -2,7 +2,9 @@
 ``python examples/tutorial/make_data.py``).
 
 Writes examples/tutorial/snapshots.csv (static poses of the paper's prototype with known
-tip weights and tensions, marker positions with 0.5 mm noise) and
+tip weights and tensions, marker positions with 0.5 mm noise),
+examples/tutorial/snapshots_tendons.csv (13 such poses read by the tendons alone, 0.1 mm
+noise) and
 examples/tutorial/readings.csv (a 6 s log at 50 Hz: tendon t1 pulled while a tip weight of
 0, 10 and 20 gF hangs on the tip; 0.1 mm and 0.8 % sensor noise). The "true" robot is
 examples/paper_prototype.toml.
@@ -58,5 +60,20 @@ with open("examples/tutorial/applied_weight.csv", "w", newline="") as fh:
     w.writerow(["time", "applied_N"])
     for k in range(n):
         w.writerow([f"{time[k]:.2f}", f"{grams[k] * GF:.6f}"])
+# --- camera-free snapshots: the same kind of poses, only the tendons' own length readings
+rng = np.random.default_rng(13)
+poses += [({"t1": 3.5}, 0.0), ({"t2": 3.0}, 0.0), ({"t3": 3.0}, 0.0)]
+with open("examples/tutorial/snapshots_tendons.csv", "w", newline="") as fh:
+    w = csv.writer(fh)
+    w.writerow([f"tension_{t}" for t in robot.tendon_names] + ["load_X", "load_fx", "load_fy",
+                "load_fz"] + [f"displacement_{t}" for t in robot.tendon_names])
+    for tensions, grams in poses:
+        load = [(0.25, (0.0, 0.0, -grams * GF))] if grams else []
+        res = solve(robot, tensions, load)
+        assert res.converged
+        row = [tensions.get(t, 0.0) for t in robot.tendon_names]
+        row += [0.25, 0.0, 0.0, round(-grams * GF, 6)] if grams else ["", "", "", ""]
+        row += [round(res.displacements[t] + rng.normal(0, 1e-4), 6) for t in robot.tendon_names]
+        w.writerow(row)
 print("wrote examples/tutorial/snapshots.csv, examples/tutorial/readings.csv, "
-      "examples/tutorial/applied_weight.csv")
+      "examples/tutorial/applied_weight.csv, examples/tutorial/snapshots_tendons.csv")

@@ -143,14 +143,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
 
     p = command("identify", "fit stiffness, density or friction to measured poses (calibration)",
-                "Fit the Young's modulus, density and/or friction coefficient of the robot "
-                "file to marker positions measured in static poses (snapshots).")
+                "Fit the Young's modulus, density and/or friction coefficients of the robot "
+                "file to static poses (snapshots): marker positions, the tendons' own length "
+                "readings (no camera needed), or both.")
     p.add_argument("robot", help="the robot file (TOML); its values are the starting guess")
     p.add_argument("--snapshots", required=True, metavar="SNAPSHOTS.csv",
-                   help="the measured poses: tensions, an optional known load and marker "
-                        "positions, one row per pose")
-    p.add_argument("--param", action="append", choices=("young_modulus", "density", "friction"),
-                   help="a parameter to fit; repeatable (default: young_modulus and density)")
+                   help="the measured poses: tensions, an optional known load, marker "
+                        "positions and/or tendon length changes, one row per pose")
+    p.add_argument("--param", action="append", metavar="NAME",
+                   help="a parameter to fit: young_modulus, density, friction (one μ for every "
+                        "tendon) or friction_<tendon>; repeatable (default: young_modulus and "
+                        "density)")
+    p.add_argument("--marker-noise", type=_positive, default=1e-3, metavar="M",
+                   help="standard deviation of a marker coordinate, m (default 0.001)")
+    p.add_argument("--length-noise", type=_positive, default=1e-4, metavar="M",
+                   help="standard deviation of a tendon length reading, m (default 0.0001)")
+    p.add_argument("--crossval", action="store_true",
+                   help="also refit without each snapshot and report how well it is predicted")
+    p.add_argument("--plot", metavar="FIGURE.png",
+                   help="write a figure of the per-snapshot errors (and the cross-validation)")
     p.add_argument("-o", "--output", metavar="FITTED.toml",
                    help="write a copy of the robot file with the fitted values")
     p.add_argument("--json", action="store_true",
@@ -523,16 +534,25 @@ PARAMETER_WORDS = {"young_modulus": ("Young's modulus E", " Pa"),
                    "friction": ("friction coefficient μ", "")}
 
 
+def _mm(v):
+    return "—" if v is None else f"{v * 1e3:.3f} mm"
+
+
 def _identify(args, robot) -> bool:
     from .identification import identify, read_snapshots
     from .robot import robot_to_toml
     snapshots = read_snapshots(args.snapshots, robot)
     prog = _Progress(args, "identify")
-    fit = identify(robot, snapshots, args.param or ("young_modulus", "density"), progress=prog)
+    fit = identify(robot, snapshots, args.param or ("young_modulus", "density"), progress=prog,
+                   marker_noise=args.marker_noise, length_noise=args.length_noise,
+                   crossval=args.crossval)
     prog.close()
     if args.output:
         from .readings import write_text_atomic
         write_text_atomic(args.output, robot_to_toml(fit.robot))
+    if args.plot:
+        from . import plotting
+        plotting.calibration(fit, args.plot)
     if args.json:
         print(json.dumps(fit.to_json()))
     else:
@@ -540,11 +560,25 @@ def _identify(args, robot) -> bool:
               f"{'converged' if fit.converged else 'NOT CONVERGED'} in {fit.iterations} "
               f"iterations")
         for k, v in fit.parameters.items():
-            label, unit = PARAMETER_WORDS.get(k, (k, ""))
+            label, unit = PARAMETER_WORDS.get(k, (f"friction coefficient μ of tendon "
+                                                  f"{k.partition('_')[2]}", ""))
             print(f"  {label} ({k}): {v:.6g}{unit}")
-        print(f"  marker RMSE: {fit.marker_rmse:.5f} m ({fit.marker_rmse * 1e3:.2f} mm) after "
-              f"the fit, {fit.initial_rmse:.5f} m ({fit.initial_rmse * 1e3:.2f} mm) with the "
-              f"robot file's values")
+        if fit.marker_rmse is not None:
+            print(f"  marker RMSE: {_mm(fit.marker_rmse)} after the fit, "
+                  f"{_mm(fit.initial_marker_rmse)} with the robot file's values")
+        if fit.displacement_rmse is not None:
+            print(f"  tendon-length RMSE: {_mm(fit.displacement_rmse)} after the fit, "
+                  f"{_mm(fit.initial_displacement_rmse)} with the robot file's values")
+        if fit.crossval:
+            print("  cross-validation (each snapshot predicted by a fit without it):")
+            for c in fit.crossval:
+                errs = ", ".join(f"{w} {_mm(v)} (fitted {_mm(f)})" for w, v, f in (
+                    ("markers", c.marker_error, c.fitted_marker_error),
+                    ("lengths", c.displacement_error, c.fitted_displacement_error))
+                    if f is not None)
+                print(f"    snapshot {c.snapshot}: {errs}" + (f"; {c.note}" if c.note else ""))
+        if args.plot:
+            print(f"  wrote {args.plot}")
         if args.output:
             print(f"  wrote {args.output}")
     return fit.converged

@@ -224,6 +224,11 @@ def reduced_jacobians(prob: Problem, x, drive, values: Values):
     return -yq @ sol[:, :prob.n_z], -yq @ sol[:, prob.n_z:]
 
 
+#: Bates–Watts relative offset below which a least-squares estimate that no step improves is
+#: at its minimum (cost within 1e-6 of it)
+RELATIVE_OFFSET = 1e-3
+
+
 def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, budget=None):
     """min ‖y(q) − y_meas‖² over the magnitudes z, q solving equilibrium (eq. 17), by
     Levenberg–Marquardt; returns (x, converged, iterations, newton result, misfit)."""
@@ -255,7 +260,9 @@ def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, 
         # stationary: the undamped Gauss–Newton step is below the resolution of z (an exact,
         # consistent sample ends here with a misfit at the equilibrium solves' rounding)
         gauss_newton = np.linalg.lstsq(Jz, -e, rcond=None)[0]
-        if (np.linalg.norm(e) <= 1e-13 or np.linalg.norm(g) <= tol * scale
+        # Bates–Watts relative offset: the share of the misfit the model can still explain
+        offset = np.linalg.norm(Jz @ gauss_newton) / max(np.linalg.norm(e), 1e-300)
+        if (np.linalg.norm(e) <= 1e-13 or np.linalg.norm(g) <= tol * scale or offset <= 1e-6
                 or np.linalg.norm(gauss_newton) <= 1e-8 * (np.linalg.norm(z) + 1e-6)):
             converged = True
             break
@@ -277,8 +284,10 @@ def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, 
                 break
             damping *= 4
         if not improved or converged:
-            # no decrease possible: at a minimum if the gradient is already tiny
-            converged = converged or np.linalg.norm(g) <= 1e-6 * max(scale, 1e-300)
+            # no decrease possible (the equilibrium solves' resolution): at a minimum if the
+            # gradient or the relative offset is already tiny
+            converged = (converged or np.linalg.norm(g) <= 1e-6 * max(scale, 1e-300)
+                         or offset <= RELATIVE_OFFSET)
             break
     x = np.concatenate([np.asarray(res.x), z])
     return x, converged and bool(res.converged), total, res, float(np.linalg.norm(e))
@@ -401,7 +410,12 @@ def _locate(prob: Problem, drive: Drive, values: Values, T, noise: Noise, budget
         x = np.concatenate([x[:-n_loc], np.zeros(n_loc)])
     else:
         # the minimum lies at an end of a range (or the refinement failed): hold X there
-        X = np.clip(X if np.all(np.isfinite(X)) else grid[best], lo, hi)
+        unrefined = not converged
+        if unrefined:
+            X = grid[best]
+            notes.append(f"the location refinement did not converge: X held at the profile's "
+                         f"best point ({', '.join(f'{x_:g} m' for x_ in X)})")
+        X = np.clip(X, lo, hi)
         at_end = [f"{x_:g} m" for x_, a, b in zip(X, lo, hi) if x_ in (a, b)]
         if at_end:
             notes.append(f"location at the end of its range ({', '.join(at_end)}): the "
@@ -411,6 +425,7 @@ def _locate(prob: Problem, drive: Drive, values: Values, T, noise: Noise, budget
         xf, converged, iterations, res, length_misfit = _solve(
             here.fixed(), d_here, values, tr.x[best], budget)
         x = np.concatenate([xf, np.zeros(n_loc)])
+        converged = converged and not unrefined
     result = _result(here, x, d_here, values, T, noise, converged, iterations, res,
                      length_misfit, location_profile=profile)
     poor = [f"{s:.3g} m" for s in result.extra["location_sigma"] if s is not None

@@ -1,30 +1,40 @@
-"""Identification of E, ρ and μ from marker positions over static snapshots (eq. 18–19).
+"""Identification of E, ρ and μ over static snapshots (eq. 18–19), from marker positions,
+tendon length changes, or both.
 
 Each snapshot's equilibrium is an exact constraint: its shape ``q_k(θ)`` is solved by the core
-Newton solver, and the marker Jacobian follows by implicit differentiation,
-``dp/dθ = p_q (−E_q⁻¹ ∂E/∂θ)``; Levenberg–Marquardt on ``log θ`` minimises
-``Σ_k ‖p_k(q_k(θ)) − p_k^meas‖²``.
+Newton solver, and the measurement Jacobian follows by implicit differentiation,
+``dm/dθ = m_q (−E_q⁻¹ ∂E/∂θ)``; Levenberg–Marquardt on ``log θ`` minimises
+``Σ_k ‖p_k − p_k^meas‖² / σ_p² + ‖y_k − y_k^meas‖² / σ_y²`` (markers and tendon readings,
+each weighted by its noise).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import tendons
 from .forward import model_for
+from .kinematics import poses
 from .model import Structure
 from .readings import read_csv_rows
 from .robot import Robot
 from .statics import CACHE_SIZE, Drive, Unknowns, marker_positions, solve_system, terms
 
+#: parameters fitted by name; ``friction_<tendon>`` fits one tendon's μ
 PARAMETERS = ("young_modulus", "density", "friction")
+
+#: default measurement noise (1 σ): markers, tendon length changes (m)
+MARKER_NOISE = 1e-3
+LENGTH_NOISE = 1e-4
+
 _DESCRIPTIVE = ("source", "note", "comment", "time", "id", "name")
 
 
@@ -34,31 +44,63 @@ class SnapshotError(ValueError):
 
 @dataclass(frozen=True)
 class Snapshot:
-    """One static pose: tensions (N, per tendon), an optional known global point load and the
-    measured marker positions (m, global)."""
+    """One static pose: tensions (N, per tendon), an optional known global point load, and
+    what was measured: marker positions (m, global) and/or tendon length changes (m)."""
 
     tensions: dict[str, float]
-    markers: dict[str, np.ndarray]
+    markers: dict[str, np.ndarray] = field(default_factory=dict)
     load: tuple[float, tuple[float, float, float]] | None = None
+    displacements: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class LeftOut:
+    """Cross-validation of one snapshot: the parameters fitted without it and how far its
+    measurements lie from their prediction (RMS, m; None where not measured)."""
+
+    snapshot: int  # 1-based, in the order given
+    parameters: dict[str, float] | None  # None if the rest cannot determine them
+    marker_error: float | None
+    displacement_error: float | None
+    fitted_marker_error: float | None  # the same snapshot's misfit with every snapshot fitted
+    fitted_displacement_error: float | None
+    converged: bool
+    note: str = ""
+
+    def to_json(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
 @dataclass(frozen=True)
 class Identified:
+    """The fitted parameters (SI) and the misfits before and after (RMS, m; None for a kind of
+    measurement no snapshot has)."""
+
     parameters: dict[str, float]
-    marker_rmse: float  # m, after the fit
-    initial_rmse: float  # m, with the robot file's values
+    marker_rmse: float | None
+    displacement_rmse: float | None
+    initial_marker_rmse: float | None
+    initial_displacement_rmse: float | None
     converged: bool
     iterations: int
     robot: Robot  # the robot with the fitted values
+    crossval: tuple[LeftOut, ...] = ()
+    snapshot_errors: tuple[tuple[float | None, float | None], ...] = ()  # per snapshot, fitted
 
     def to_json(self) -> dict:
-        return {**self.parameters, "marker_rmse": self.marker_rmse,
-                "initial_marker_rmse": self.initial_rmse, "converged": self.converged,
-                "iterations": self.iterations}
+        out = {**self.parameters, "marker_rmse": self.marker_rmse,
+               "displacement_rmse": self.displacement_rmse,
+               "initial_marker_rmse": self.initial_marker_rmse,
+               "initial_displacement_rmse": self.initial_displacement_rmse,
+               "converged": self.converged, "iterations": self.iterations}
+        if self.crossval:
+            out["crossval"] = [c.to_json() for c in self.crossval]
+        return out
 
 
 def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
-    """SNAPSHOTS.csv of SPEC §4."""
+    """SNAPSHOTS.csv: one row per static snapshot (tensions, an optional known load, marker
+    positions and/or tendon length changes)."""
     path = Path(path)
     raw = read_csv_rows(path, SnapshotError)
     header = raw[0] if raw else []
@@ -68,16 +110,19 @@ def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
         raise SnapshotError(f"{path}: no snapshot rows")
     load_cols = ("load_X", "load_fx", "load_fy", "load_fz")
     markers = [m for m in robot.marker_names if f"marker_{m}_x" in header]
+    measured = [n for n in robot.tendon_names if f"displacement_{n}" in header]
     for col in header:
         kind, _, name = col.partition("_")
         ok = (col in _DESCRIPTIVE or col in load_cols
-              or (kind == "tension" and name in robot.tendon_names)
+              or (kind in ("tension", "displacement") and name in robot.tendon_names)
               or (kind == "marker" and name[:-2] in markers and name[-2:] in ("_x", "_y", "_z")))
         if not ok:
             raise SnapshotError(f"{path}: column {col!r} is not tension_<tendon>, "
-                                f"load_X/_fx/_fy/_fz or marker_<marker>_x/_y/_z")
-    if not markers:
-        raise SnapshotError(f"{path}: no marker_<name>_x/_y/_z columns: nothing to fit to")
+                                f"displacement_<tendon>, load_X/_fx/_fy/_fz or "
+                                f"marker_<marker>_x/_y/_z")
+    if not markers and not measured:
+        raise SnapshotError(f"{path}: no marker_<name>_x/_y/_z or displacement_<tendon> "
+                            f"columns: nothing to fit to")
     out = []
     for i, row in enumerate(rows, start=1):
         def num(col, required=True):
@@ -95,7 +140,16 @@ def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
                                     f"not a finite number")
             return v
         tensions = {n: num(f"tension_{n}") for n in robot.tendon_names if f"tension_{n}" in row}
-        pos = {m: np.array([num(f"marker_{m}_{a}") for a in "xyz"]) for m in markers}
+        pos = {}
+        for m in markers:  # a marker is measured in a row when any of its cells is filled
+            cols = [f"marker_{m}_{a}" for a in "xyz"]
+            if any((row.get(c) or "").strip() for c in cols):
+                pos[m] = np.array([num(c) for c in cols])
+        lengths = {n: v for n in measured
+                   if (v := num(f"displacement_{n}", required=False)) is not None}
+        if not pos and not lengths:
+            raise SnapshotError(f"{path}: snapshot row {i}: no marker position and no tendon "
+                                f"displacement: nothing measured")
         load_vals = [num(c, required=False) if c in row else None for c in load_cols]
         if all(v is None for v in load_vals):
             load = None
@@ -107,29 +161,46 @@ def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
                 raise SnapshotError(f"{path}: snapshot row {i}: load_X = {load_vals[0]:g} is "
                                     f"outside the rod")
             load = (load_vals[0], tuple(load_vals[1:]))
-        out.append(Snapshot(tensions, pos, load))
+        out.append(Snapshot(tensions, pos, load, lengths))
     return out
+
+
+def parameter_names(robot: Robot) -> tuple[str, ...]:
+    """Every parameter :func:`identify` can fit for ``robot``."""
+    return (*PARAMETERS, *(f"friction_{n}" for n in robot.tendon_names))
 
 
 def _check(robot: Robot, snapshots: Sequence[Snapshot], params: Sequence[str]):
     if not snapshots:
         raise SnapshotError("no snapshots")
-    bad = [p for p in params if p not in PARAMETERS]
+    allowed = parameter_names(robot)
+    bad = [p for p in params if p not in allowed]
     if bad or not params:
-        raise SnapshotError(f"parameters to fit must be among {', '.join(PARAMETERS)}; got "
+        raise SnapshotError(f"parameters to fit must be among {', '.join(allowed)}; got "
                             f"{', '.join(params) or 'none'}")
     for k, s in enumerate(snapshots, start=1):
-        if not s.markers:
-            raise SnapshotError(f"snapshot {k}: no measured markers")
+        if not s.markers and not s.displacements:
+            raise SnapshotError(f"snapshot {k}: no measured markers and no tendon "
+                                f"displacements")
         for m, p in s.markers.items():
             if m not in robot.marker_names:
                 raise SnapshotError(f"snapshot {k}: no marker {m!r} in the robot")
             if np.shape(p) != (3,) or not np.all(np.isfinite(p)):
                 raise SnapshotError(f"snapshot {k}: marker {m!r} is not 3 finite numbers")
+        for n, v in s.displacements.items():
+            if n not in robot.tendon_names:
+                raise SnapshotError(f"snapshot {k}: no tendon {n!r} in the robot")
+            if not np.isfinite(v):
+                raise SnapshotError(f"snapshot {k}: displacement of {n!r} is not finite")
     tensioned = any(any(v != 0 for v in s.tensions.values()) for s in snapshots)
     if "friction" in params and not tensioned:
         raise SnapshotError("friction cannot be identified: no snapshot has a tendon under "
                             "tension")
+    for p in params:
+        name = p.partition("_")[2]
+        if p.startswith("friction_") and not any(s.tensions.get(name, 0) for s in snapshots):
+            raise SnapshotError(f"{p} cannot be identified: no snapshot has tendon {name!r} "
+                                f"under tension")
     loaded = any(s.load is not None for s in snapshots)
     if {"young_modulus", "density"} <= set(params) and not (loaded or tensioned):
         raise SnapshotError("young_modulus and density cannot both be identified from "
@@ -137,119 +208,268 @@ def _check(robot: Robot, snapshots: Sequence[Snapshot], params: Sequence[str]):
                             "observable): add a known load or tendon tension")
 
 
+def _observable(J: np.ndarray, params: Sequence[str], what: str):
+    """Refuse parameters that the measurements cannot determine: a column of ``J`` (weighted
+    residuals per log θ) that is zero, or columns that are proportional."""
+    norms = np.linalg.norm(J, axis=0)
+    dead = [p for p, n in zip(params, norms) if not n > 1e-12 * max(norms.max(), 1e-300)]
+    if dead:
+        raise SnapshotError(f"{', '.join(dead)} cannot be identified: it changes none of the "
+                            f"measured {what} of these snapshots")
+    if len(params) > 1:
+        _, s, Vt = np.linalg.svd(J / norms, full_matrices=False)
+        if s[-1] < 1e-7 * s[0]:
+            tied = [p for p, v in zip(params, Vt[-1]) if abs(v) > 0.1]
+            raise SnapshotError(f"{' and '.join(tied)} cannot be told apart by these "
+                                f"snapshots: their effects on the measured {what} are "
+                                f"proportional; add snapshots that load the rod differently "
+                                f"(another tension, a known weight)")
+
+
 @lru_cache(maxsize=CACHE_SIZE)
 def _snapshot_fns(structure: Structure):
-    """Jitted marker positions and the Jacobians (E_q, E_θ, p_q) of one snapshot, θ the
-    values :data:`PARAMETERS` by name."""
+    """Jitted marker positions and tendon length changes, and their Jacobians with the
+    equilibrium's (E_q, E_θ, p_q, y_q), θ the values :data:`PARAMETERS` by name."""
     unknowns = Unknowns.none(structure.n_tendons, 1)
 
     def equilibrium(q, theta, values, drive):
         values = values._replace(**theta)
         t = terms(structure, values, q, jnp.zeros(0), drive, unknowns, 1.0)
-        return values.young_modulus * (values.stiffness() @ q) - t.load
+        return values.young_modulus * (values.stiffness() @ q) - t.load, t.y
+
+    def measurements(q, values):
+        return (marker_positions(structure, values, q),
+                tendons.length_changes(structure, values, poses(values, q)[0]))
 
     def jacobians(q, values, drive):
         theta = {k: getattr(values, k) for k in PARAMETERS}
-        Eq, Et = jax.jacfwd(equilibrium, argnums=(0, 1))(q, theta, values, drive)
-        return Eq, Et, jax.jacfwd(lambda q: marker_positions(structure, values, q))(q)
+        (Eq, Et), (Yq, _) = jax.jacfwd(equilibrium, argnums=(0, 1))(q, theta, values, drive)
+        return Eq, Et, jax.jacfwd(lambda q: marker_positions(structure, values, q))(q), Yq
 
-    return (jax.jit(lambda q, values: marker_positions(structure, values, q)),
-            jax.jit(jacobians))
+    return jax.jit(measurements), jax.jit(jacobians)
 
 
-def identify(robot: Robot, snapshots: Sequence[Snapshot],
-             params: Sequence[str] = ("young_modulus", "density"), max_iterations: int = 50,
-             progress=None) -> Identified:
-    """Fit ``params`` (a subset of young_modulus, density, friction — one μ for every tendon)
-    to the snapshots' markers, starting from the robot file's values."""
-    params = tuple(dict.fromkeys(params))
-    _check(robot, snapshots, params)
+@dataclass
+class _Setup:
+    """One robot's snapshots ready to fit: drives, measurements and their weights."""
+
+    model: object
+    params: tuple[str, ...]
+    drives: list
+    markers: list  # per snapshot: (indices, measured (n, 3))
+    lengths: list  # per snapshot: (indices, measured (n,))
+    weights: tuple[float, float]  # 1/σ markers, 1/σ lengths
+    scale: np.ndarray  # θ at log ratio 0
+
+    def values(self, log_ratio):
+        """The model's values at ``θ = scale · exp(log_ratio)`` and θ by name."""
+        theta = dict(zip(self.params, self.scale * np.exp(log_ratio)))
+        names = self.model.robot.tendon_names
+        mu = np.array(self.model.values.friction, float)
+        if "friction" in theta:
+            own = {p.partition("_")[2] for p in self.params if p.startswith("friction_")}
+            mu[[j for j, n in enumerate(names) if n not in own]] = theta["friction"]
+        for j, n in enumerate(names):
+            mu[j] = theta.get(f"friction_{n}", mu[j])
+        other = {k: v for k, v in theta.items() if k in ("young_modulus", "density")}
+        return self.model.with_values(friction=mu, **other).values, theta
+
+    def column(self, Et: dict, name: str) -> np.ndarray:
+        """∂E/∂θ of one parameter (``friction``: the tendons without a μ of their own)."""
+        if name in ("young_modulus", "density"):
+            return np.asarray(Et[name])
+        names = self.model.robot.tendon_names
+        if name == "friction":
+            own = {p.partition("_")[2] for p in self.params if p.startswith("friction_")}
+            cols = [j for j, n in enumerate(names) if n not in own]
+        else:
+            cols = [names.index(name.partition("_")[2])]
+        return np.asarray(Et["friction"])[:, cols].sum(axis=1)
+
+    def evaluate(self, log_ratio, subset, q_start):
+        """Per snapshot in ``subset``: (marker residual (n, 3), length residual (n,)), the
+        weighted residual's Jacobian w.r.t. log θ and the shapes; None if an equilibrium
+        fails."""
+        structure = self.model.structure
+        values, chosen = self.values(log_ratio)
+        dtheta = np.array([chosen[n] for n in self.params])  # d/d log θ = θ d/dθ
+        measure, jac_fn = _snapshot_fns(structure)
+        unknowns = Unknowns.none(structure.n_tendons, 1)
+        parts, jac, qs = [], [], {}
+        wm, wl = self.weights
+        for k in subset:
+            d = self.drives[k]
+            sol = solve_system(structure, values, (), d, unknowns, q_start.get(k))
+            if not bool(sol.converged):
+                return None
+            p, y = measure(sol.x, values)
+            (mi, mp), (li, ly) = self.markers[k], self.lengths[k]
+            parts.append((np.asarray(p)[mi] - mp, np.asarray(y)[li] - ly))
+            Eq, Et, Pq, Yq = jac_fn(sol.x, values, d)
+            dE = np.stack([self.column(Et, n) for n in self.params], axis=1) * dtheta
+            dq = -np.linalg.solve(np.asarray(Eq), dE)
+            jac += [wm * (np.asarray(Pq)[mi] @ dq).reshape(-1, len(self.params)),
+                    wl * np.asarray(Yq)[li] @ dq]
+            qs[k] = sol.x
+        return parts, np.concatenate(jac), qs
+
+    def residual(self, parts) -> np.ndarray:
+        wm, wl = self.weights
+        return np.concatenate([np.concatenate([wm * m.ravel(), wl * y]) for m, y in parts])
+
+    def fit(self, theta, subset, qs, max_iterations, progress=None):
+        """Levenberg–Marquardt from ``theta`` (log ratios): (θ, parts, J, qs, converged,
+        iterations)."""
+        first = self.evaluate(theta, subset, qs)
+        if first is None:
+            raise SnapshotError("a snapshot's equilibrium did not converge with the starting "
+                                "parameters")
+        parts, J, qs = first
+        r = self.residual(parts)
+        damping, converged, it = 1e-3, False, 0
+        for it in range(1, max_iterations + 1):
+            g, H = J.T @ r, J.T @ J
+            # the undamped Gauss–Newton step, relative change of θ: converged below 1e-6, or
+            # below 1e-5 once no step lowers the cost (the equilibrium solves' resolution)
+            gn = np.linalg.norm(np.linalg.lstsq(H, -g, rcond=None)[0])
+            if gn <= 1e-6:
+                converged = True
+                break
+            improved = False
+            while damping < 1e10:
+                step = np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-12), -g)
+                trial = self.evaluate(theta + step, subset, qs)
+                if trial is not None and _sq(self.residual(trial[0])) < r @ r:
+                    theta, (parts, J, qs) = theta + step, trial
+                    r = self.residual(parts)
+                    damping, improved = max(damping / 5, 1e-10), True
+                    break
+                damping *= 5
+            if progress is not None:
+                progress(it, max_iterations)
+            if not improved:
+                converged = gn <= 1e-5
+                break
+        return theta, parts, J, qs, bool(converged), it
+
+
+def _sq(r):
+    return float(r @ r)
+
+
+def _setup(robot: Robot, snapshots: Sequence[Snapshot], params, marker_noise, length_noise):
     model = model_for(robot)
-    structure, base = model.structure, model.values
-    names = robot.marker_names
+    base = model.values
     gravity = jnp.asarray(robot.gravity, float)
-    unknowns = Unknowns.none(len(robot.tendons), 1)
-    drives, meas, idx = [], [], []
+    drives, markers, lengths = [], [], []
     for s in snapshots:
         T = np.array([s.tensions.get(n, 0.0) for n in robot.tendon_names])
         X, F = (s.load[0], s.load[1]) if s.load is not None else (robot.rod.length, (0, 0, 0))
         drives.append(Drive(jnp.asarray(T), jnp.asarray([F], float), jnp.asarray([X], float),
                             gravity, jnp.zeros(0)))
-        sel = [names.index(m) for m in s.markers]
-        idx.append(sel)
-        meas.append(np.array([s.markers[m] for m in s.markers]))
-    markers_fn, jac_fn = _snapshot_fns(structure)
+        markers.append(([robot.marker_names.index(m) for m in s.markers],
+                        np.array([s.markers[m] for m in s.markers]).reshape(-1, 3)))
+        lengths.append(([robot.tendon_names.index(n) for n in s.displacements],
+                        np.array(list(s.displacements.values()), float)))
+    mu = np.asarray(base.friction, float)
+    start = {"young_modulus": float(base.young_modulus), "density": float(base.density),
+             "friction": max(float(mu.mean()) if mu.size else 0.0, 0.05),
+             **{f"friction_{n}": max(float(mu[j]), 0.05)
+                for j, n in enumerate(robot.tendon_names)}}
+    for noise, what in ((marker_noise, "marker noise"), (length_noise, "length noise")):
+        if not (np.isfinite(noise) and noise > 0):
+            raise ValueError(f"{what} must be a positive number of metres, got {noise}")
+    return _Setup(model, tuple(params), drives, markers, lengths,
+                  (1.0 / marker_noise, 1.0 / length_noise),
+                  np.array([start[p] for p in params]))
 
-    theta0 = {"young_modulus": float(base.young_modulus), "density": float(base.density),
-              "friction": max(float(np.mean(np.asarray(base.friction))) if robot.tendons
-                              else 0.0, 0.05)}
-    scale = np.array([theta0[p] for p in params])
 
-    def make_values(log_ratio):
-        v = dict(zip(params, scale * np.exp(log_ratio)))
-        return model.with_values(**v).values, v
+def _what(snapshots) -> str:
+    kinds = [w for w, has in (("marker positions", any(s.markers for s in snapshots)),
+                              ("tendon lengths", any(s.displacements for s in snapshots)))
+             if has]
+    return " and ".join(kinds)
 
-    def evaluate(log_ratio, q_start):
-        """Marker residuals, their Jacobian w.r.t. log θ and the snapshot shapes, or None if
-        an equilibrium fails."""
-        values, chosen = make_values(log_ratio)
-        dtheta = np.array([chosen[n] for n in params])  # d/d log θ = θ d/dθ
-        res, jac, qs = [], [], []
-        for k, d in enumerate(drives):
-            sol = solve_system(structure, values, (), d, unknowns, q_start[k])
-            if not bool(sol.converged):
-                return None
-            res.append((np.asarray(markers_fn(sol.x, values))[idx[k]] - meas[k]).ravel())
-            Eq, Et, Pq = jac_fn(sol.x, values, d)
-            dE = np.stack([_param_column(Et, n) for n in params], axis=1) * dtheta
-            dq = -np.linalg.solve(np.asarray(Eq), dE)
-            jac.append((np.asarray(Pq)[idx[k]] @ dq).reshape(-1, len(params)))
-            qs.append(sol.x)
-        return np.concatenate(res), np.concatenate(jac), qs
 
-    theta = np.zeros(len(params))
-    first = evaluate(theta, [None] * len(drives))
+def _errors(parts):
+    """RMS marker distance and RMS length residual over ``parts`` (None where empty)."""
+    m = np.concatenate([p for p, _ in parts]) if parts else np.zeros((0, 3))
+    y = np.concatenate([y for _, y in parts]) if parts else np.zeros(0)
+    return (float(np.sqrt(np.mean(np.sum(m**2, axis=1)))) if len(m) else None,
+            float(np.sqrt(np.mean(y**2))) if len(y) else None)
+
+
+def identify(robot: Robot, snapshots: Sequence[Snapshot],
+             params: Sequence[str] = ("young_modulus", "density"), max_iterations: int = 50,
+             progress: Callable[[int, int], None] | None = None, *,
+             marker_noise: float = MARKER_NOISE, length_noise: float = LENGTH_NOISE,
+             crossval: bool = False) -> Identified:
+    """Fit ``params`` (among young_modulus, density, friction — one μ for every tendon — and
+    friction_<tendon>) to the snapshots' markers and/or tendon length changes, starting from
+    the robot file's values; each kind of measurement weighted by its noise (1 σ, m).
+
+    With ``crossval``, also refit without each snapshot in turn and predict it
+    (:class:`LeftOut`): whether the calibration generalises beyond the poses it saw."""
+    params = tuple(dict.fromkeys(params))
+    _check(robot, snapshots, params)
+    setup = _setup(robot, snapshots, params, marker_noise, length_noise)
+    everything = range(len(snapshots))
+    first = setup.evaluate(np.zeros(len(params)), everything, {})
     if first is None:
         raise SnapshotError("a snapshot's equilibrium did not converge with the robot file's "
                             "parameters")
-    r, J, qs = first
-    initial_rmse = _rmse(r)
-    damping, converged, it = 1e-3, False, 0
-    for it in range(1, max_iterations + 1):
-        g, H = J.T @ r, J.T @ J
-        # the undamped Gauss–Newton step, relative change of θ: converged below 1e-6, or below
-        # 1e-5 once no step lowers the cost (the equilibrium solves' resolution)
-        gn = np.linalg.norm(np.linalg.lstsq(H, -g, rcond=None)[0])
-        if gn <= 1e-6:
-            converged = True
-            break
-        improved = False
-        while damping < 1e10:
-            step = np.linalg.solve(H + damping * np.diag(np.diag(H) + 1e-12), -g)
-            trial = evaluate(theta + step, qs)
-            if trial is not None and trial[0] @ trial[0] < r @ r:
-                theta, (r, J, qs) = theta + step, trial
-                damping, improved = max(damping / 5, 1e-10), True
-                break
-            damping *= 5
-        if progress is not None:
-            progress(it, max_iterations)
-        if not improved:
-            converged = gn <= 1e-5
-            break
-    _, fitted = make_values(theta)
+    _observable(first[1], params, _what(snapshots))
+    initial = _errors(first[0])
+    theta, parts, _, qs, converged, it = setup.fit(np.zeros(len(params)), everything,
+                                                   first[2], max_iterations, progress)
+    _, fitted = setup.values(theta)
     fitted = {k: float(v) for k, v in fitted.items()}
-    new_robot = robot.with_parameters(**fitted)
-    return Identified(fitted, _rmse(r), initial_rmse, bool(converged), it, new_robot)
+    per_snapshot = tuple(_errors([p]) for p in parts)
+    folds = _cross_validate(setup, snapshots, theta, qs, per_snapshot, max_iterations,
+                            progress) if crossval else ()
+    mu = {p.partition("_")[2]: v for p, v in fitted.items() if p.startswith("friction_")}
+    shared = {n: fitted["friction"] for n in robot.tendon_names
+              if "friction" in fitted and n not in mu}
+    new_robot = robot.with_parameters(young_modulus=fitted.get("young_modulus"),
+                                      density=fitted.get("density"),
+                                      friction={**shared, **mu} or None)
+    return Identified(fitted, *_errors(parts), *initial, converged, it, new_robot, folds,
+                      per_snapshot)
 
 
-def _param_column(Et: dict, name: str) -> np.ndarray:
-    """∂E/∂θ for one parameter (friction: one μ shared by every tendon)."""
-    if name == "friction":
-        return np.asarray(Et["friction"]).sum(axis=1)
-    return np.asarray(Et[name])
+def _cross_validate(setup: _Setup, snapshots, theta, qs, fitted_errors, max_iterations,
+                    progress) -> tuple[LeftOut, ...]:
+    """Refit without each snapshot (from the full fit) and predict the one left out."""
+    n = len(snapshots)
+    if n < 2:
+        raise SnapshotError("cross-validation needs at least 2 snapshots")
+    out = []
+    for k in range(n):
+        rest = [i for i in range(n) if i != k]
+        fitted = _Fold(None, None, None, False, "")
+        try:
+            _check(setup.model.robot, [snapshots[i] for i in rest], setup.params)
+            t, _, J, _, ok, _ = setup.fit(theta, rest, dict(qs), max_iterations)
+            _observable(J, setup.params, _what([snapshots[i] for i in rest]))
+            predicted = setup.evaluate(t, [k], qs)
+            if predicted is None:
+                fitted = _Fold(t, None, None, False, "its equilibrium did not converge")
+            else:
+                fitted = _Fold(t, *_errors(predicted[0]), ok, "")
+        except SnapshotError as exc:
+            fitted = _Fold(None, None, None, False, f"the rest cannot: {exc}")
+        params = None if fitted.theta is None else {
+            p: float(v) for p, v in setup.values(fitted.theta)[1].items()}
+        out.append(LeftOut(k + 1, params, fitted.marker, fitted.displacement,
+                           *fitted_errors[k], fitted.converged, fitted.note))
+        if progress is not None:
+            progress(k + 1, n)
+    return tuple(out)
 
 
-def _rmse(r: np.ndarray) -> float:
-    """Root-mean-square marker distance: r holds xyz triples."""
-    return float(np.sqrt(np.mean(np.sum(r.reshape(-1, 3) ** 2, axis=1))))
+class _Fold(NamedTuple):
+    theta: np.ndarray | None
+    marker: float | None
+    displacement: float | None
+    converged: bool
+    note: str

@@ -1,4 +1,4 @@
-"""External loads (eq. 8b): gravity as a distributed load and point forces given in the global
+"""External loads (eq. 8b): gravity as a distributed load, lumped masses and point forces given in the global
 frame at material points, as cotangents of the configuration (poses and stretches) where they
 act (:func:`~tendonsense.kinematics.force_cotangent`); pulled back through it they give
 ``∫ Jᵀ M̄ Ad_g⁻¹ G dX`` and ``Σ_k J_kᵀ Ad*_{g_θ} F_k``."""
@@ -26,6 +26,11 @@ def gravity(values, g, nu, acceleration):
         return values.density * jnp.dot(acceleration, integral)
 
     return jax.grad(work, argnums=(0, 1))(g, nu)
+
+
+def lumped_masses(values, acceleration):
+    """The weights of the lumped masses at their centres, by their cotangents."""
+    return force_cotangent(values.masses[:, None] * acceleration, values.mass_offsets)
 
 
 def point_forces(forces):

@@ -83,6 +83,9 @@ class Values(NamedTuple):
     tendons: tuple[TendonGroup, ...]
     marker_X: jax.Array  # (n_m,)
     marker_offsets: jax.Array  # (n_m, 3)
+    mass_X: jax.Array  # (n_mass,) where the lumped masses sit
+    mass_offsets: jax.Array  # (n_mass, 3) its centre in the cross-section frame
+    masses: jax.Array  # (n_mass,) kg
     base: jax.Array  # 4x4 base pose
     young_modulus: jax.Array
     poisson_ratio: jax.Array
@@ -188,6 +191,9 @@ class Model:
             stretch_ends=ends, tendons=tuple(tendon_values),
             marker_X=np.array([m.X for m in robot.markers], float),
             marker_offsets=np.array([m.offset for m in robot.markers], float).reshape(-1, 3),
+            mass_X=np.array([m.X for m in robot.masses], float),
+            mass_offsets=np.array([m.offset for m in robot.masses], float).reshape(-1, 3),
+            masses=np.array([m.mass for m in robot.masses], float),
             base=base, young_modulus=np.float64(rod.young_modulus),
             poisson_ratio=np.float64(rod.poisson_ratio), density=np.float64(rod.density),
             friction=np.array([t.friction for t in robot.tendons], float).reshape(-1),

@@ -190,3 +190,34 @@ def location_profile(result, path):
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+def calibration(fit, path):
+    """Per snapshot: the misfit after the fit and, with cross-validation, the error of its
+    prediction by the parameters fitted without it (markers in mm, tendon lengths in µm)."""
+    kinds = [(k, unit, scale) for k, unit, scale in (("marker", "mm", 1e3),
+                                                      ("displacement", "µm", 1e6))
+             if any(e[i] is not None for e in fit.snapshot_errors
+                    for i in [0 if k == "marker" else 1])]
+    fig, axes = plt.subplots(len(kinds), 1, figsize=(7, 2.8 * len(kinds)), squeeze=False)
+    n = len(fit.snapshot_errors)
+    idx = np.arange(1, n + 1)
+    for ax, (kind, unit, scale) in zip(axes[:, 0], kinds):
+        col = 0 if kind == "marker" else 1
+        fitted = np.array([np.nan if e[col] is None else e[col] for e in fit.snapshot_errors])
+        width = 0.4 if fit.crossval else 0.8
+        ax.bar(idx - (width / 2 if fit.crossval else 0), fitted * scale, width,
+               color="tab:blue", label="after the fit (every snapshot)")
+        if fit.crossval:
+            left = np.array([np.nan if getattr(c, f"{kind}_error") is None
+                             else getattr(c, f"{kind}_error") for c in fit.crossval])
+            ax.bar(idx + width / 2, left * scale, width, color="tab:orange",
+                   label="predicted, fitted without it")
+        ax.set_ylabel(f"RMS {'marker' if kind == 'marker' else 'tendon-length'} error ({unit})")
+        ax.set_xticks(idx)
+        ax.legend(fontsize=8)
+    axes[-1, 0].set_xlabel("snapshot")
+    axes[0, 0].set_title("Calibration: per-snapshot error" +
+                         (" and leave-one-out prediction" if fit.crossval else ""))
+    fig.tight_layout()
+    return _save(fig, path)

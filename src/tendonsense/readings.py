@@ -1,4 +1,4 @@
-"""CSV files of tendon readings (SPEC §4): reading a log, estimating over it, writing the
+"""CSV files of tendon readings: reading a log, estimating over it, writing the
 result atomically."""
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ class Result:
     extra: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
-        """The SPEC §4 keys (plus uncertainty for estimates) as plain JSON types."""
+        """The documented JSON keys (plus uncertainty for estimates) as plain JSON types."""
         out = {}
         if self.magnitudes is not None:
             out["magnitudes"] = _plain(self.magnitudes)

@@ -1,4 +1,4 @@
-"""The robot description (SPEC §3): immutable data loaded and validated from a TOML file.
+"""The robot description: immutable data loaded and validated from a TOML file.
 
 Every bad value raises :class:`RobotFileError` with one line naming the key and the reason.
 """
@@ -51,6 +51,17 @@ class Marker:
 
 
 @dataclass(frozen=True)
+class Mass:
+    """A rigid lumped mass (kg) fixed to the rod at X, its centre at ``offset`` in the
+    cross-section frame (a guide ring, a sensor, a gripper)."""
+
+    name: str
+    X: float
+    mass: float
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
 class Numerics:
     """Discretisation and solver settings (``[solver]`` table)."""
 
@@ -72,6 +83,7 @@ class Robot:
     markers: tuple[Marker, ...] = ()
     numerics: Numerics = Numerics()
     elements: tuple[float, ...] = ()  # interior element bounds; empty: the global basis
+    masses: tuple[Mass, ...] = ()
 
     @property
     def tendon_names(self) -> tuple[str, ...]:
@@ -85,7 +97,8 @@ class Robot:
         return dataclasses.replace(self, **changes)
 
     def with_parameters(self, young_modulus=None, density=None, friction=None) -> "Robot":
-        """A copy with other material parameters (``friction`` applies to every tendon)."""
+        """A copy with other material parameters; ``friction`` is one μ for every tendon or a
+        ``{tendon: μ}`` mapping for some of them."""
         rod = self.rod
         if young_modulus is not None:
             rod = dataclasses.replace(rod, young_modulus=float(young_modulus))
@@ -93,14 +106,16 @@ class Robot:
             rod = dataclasses.replace(rod, density=float(density))
         tendons = self.tendons
         if friction is not None:
-            tendons = tuple(dataclasses.replace(t, friction=float(friction)) for t in tendons)
+            mu = friction if isinstance(friction, dict) else {t.name: friction for t in tendons}
+            tendons = tuple(dataclasses.replace(t, friction=float(mu.get(t.name, t.friction)))
+                            for t in tendons)
         return dataclasses.replace(self, rod=rod, tendons=tendons)
 
 
 # ----------------------------------------------------------------------------- loading
 
 def load_robot(path: str | Path) -> Robot:
-    """Read and validate a robot file (SPEC §3)."""
+    """Read and validate a robot file."""
     path = Path(path)
     try:
         text = path.read_text()
@@ -190,7 +205,8 @@ class _Reader:
 def parse_robot(data: dict, source: str = "robot", default_name: str = "robot") -> Robot:
     """Validate a parsed robot-file dictionary and build a :class:`Robot`."""
     top = _Reader(data, "", source)
-    top.check_keys(("name", "rod", "strain", "gravity", "base", "tendon", "marker", "solver"))
+    top.check_keys(("name", "rod", "strain", "gravity", "base", "tendon", "marker", "mass",
+                    "solver"))
     name = top.string("name", default=default_name)
 
     if not top.has("rod"):
@@ -248,6 +264,18 @@ def parse_robot(data: dict, source: str = "robot", default_name: str = "robot") 
                               r.vector("offset", 3, default=(0.0, 0.0, 0.0))))
     _unique([m.name for m in markers], "marker", top)
 
+    masses = []
+    raw = data.get("mass", [])
+    if not isinstance(raw, list):
+        top.fail("mass", "must be an array of tables ([[mass]])")
+    for i, m in enumerate(raw):
+        r = _Reader(m, f"mass[{i}]", source)
+        r.check_keys(("name", "X", "mass", "offset"))
+        masses.append(Mass(r.string("name"), r.number("X", low=0.0, high=L),
+                           r.number("mass", low=0.0, low_open=True),
+                           r.vector("offset", 3, default=(0.0, 0.0, 0.0))))
+    _unique([m.name for m in masses], "mass", top)
+
     numerics = Numerics()
     if top.has("solver"):
         s = _Reader(data["solver"], "solver", source)
@@ -265,7 +293,7 @@ def parse_robot(data: dict, source: str = "robot", default_name: str = "robot") 
         elements = _parse_elements(_Reader(data["strain"], "strain", source), elements_raw, L,
                                    tendons)
     return Robot(name, rod, tuple(strain.items()), gravity, base_position, base_rotation, tuple(tendons),
-                 tuple(markers), numerics, elements)
+                 tuple(markers), numerics, elements, tuple(masses))
 
 
 def _parse_elements(r: _Reader, raw, L: float, tendons) -> tuple[float, ...]:
@@ -358,7 +386,7 @@ def _parse_tendon(r: _Reader, rod: Rod) -> Tendon:
 # ----------------------------------------------------------------------------- writing
 
 def robot_to_toml(robot: Robot) -> str:
-    """Serialise a robot back to the SPEC §3 format."""
+    """Serialise a robot back to the robot-file format."""
     f = repr
     rod = robot.rod
     lines = [f"name = {_q(robot.name)}", "", "[rod]", f"length = {f(rod.length)}"]
@@ -384,6 +412,9 @@ def robot_to_toml(robot: Robot) -> str:
                   f"disks = {_vec(t.disks)}"]
     for m in robot.markers:
         lines += ["", "[[marker]]", f"name = {_q(m.name)}", f"X = {f(m.X)}", f"offset = {_vec(m.offset)}"]
+    for m in robot.masses:
+        lines += ["", "[[mass]]", f"name = {_q(m.name)}", f"X = {f(m.X)}", f"mass = {f(m.mass)}",
+                  f"offset = {_vec(m.offset)}"]
     return "\n".join(lines) + "\n"
 
 

@@ -1,4 +1,4 @@
-"""Rod geometry and material: circular cross-section of piecewise-linear radius (SPEC §2)."""
+"""Rod geometry and material: circular cross-section of piecewise-linear radius."""
 
 from __future__ import annotations
 

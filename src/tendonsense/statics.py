@@ -83,6 +83,8 @@ def terms(structure: Structure, values: Values, q, z, drive: Drive, unknowns: Un
     n_loc = unknowns.positions.shape[0]
     X = drive.load_X + z[z.shape[0] - n_loc:] @ unknowns.positions if n_loc else drive.load_X
     sets = [points_at(structure, values, X)] if drive.load_X.shape[0] else []
+    if values.masses.shape[0]:
+        sets.append(points_at(structure, values, values.mass_X))
 
     def configuration(q):
         grid, *points = poses(values, q, *sets)
@@ -91,8 +93,10 @@ def terms(structure: Structure, values: Values, q, z, drive: Drive, unknowns: Un
     (grid, nu, *_), pull = jax.vjp(configuration, q)
     unit = tendons.unit_cotangents(structure, values, grid, values.friction)
     weight_g, weight_nu = loads.gravity(values, grid, nu, a)  # eq. 8b
-    point = [loads.point_forces(lam * drive.forces
-                                + jnp.tensordot(z, unknowns.forces, axes=1))] if sets else []
+    point = [loads.point_forces(lam * drive.forces + jnp.tensordot(z, unknowns.forces, axes=1))
+             ] if drive.load_X.shape[0] else []
+    if values.masses.shape[0]:
+        point.append(loads.lumped_masses(values, a))
     load = pull((jnp.tensordot(T, unit, axes=1) + weight_g, weight_nu, *point))[0]
     zeros = [jnp.zeros_like(nu), *(jnp.zeros_like(c) for c in point)]
     B = jax.vmap(lambda c: pull((c, *zeros))[0])(unit).T
