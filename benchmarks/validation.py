@@ -30,7 +30,7 @@ worst = 0
 for seed in range(3):
     q = jnp.asarray(np.random.default_rng(seed).normal(scale=2.0, size=m.nq))
     B = np.asarray(tendons.actuation(m.structure, m.values, q, jnp.zeros(3)))
-    dy = np.asarray(jax.jacfwd(lambda q: tendons.length_changes(m.structure, m.values, poses(m.values, q)[0]))(q))
+    dy = np.asarray(jax.jacfwd(lambda q: tendons.length_changes(m.structure, m.values, poses(m.values, q)[0], q))(q))
     worst = max(worst, np.abs(B + dy.T).max() / np.abs(B).max())
 print("B identity max rel", worst)
 loads = [(0.25, (0.0, 0.2, -0.5))]; tension = {"t1": 2.0, "t3": 1.0}

@@ -6,7 +6,13 @@ Full Kirchhoff–Cosserat statics with shear and extension, integrated in the gl
     r' = R v,  R' = R û,  n' = −ρ A a_g,  m' = −r' × n,
     v = e_x + diag(EA, GA, GA)⁻¹ Rᵀ n,   u = diag(G Jx, E Jy, E Jz)⁻¹ Rᵀ m,
 
-with the orientation as a unit quaternion. Point forces (tendon disks, point loads) make
+with the orientation as a unit quaternion. Continuously routed tendons (Rucker & Webster
+2011) enter through the composite section: ``n`` and ``m`` are then the internal force and
+moment of rod and tendons together (``n' = −ρ A a_g`` and ``m' = −r' × n`` still hold, a
+tendon's tension acting along its own path), the rod's part is ``n − Σ τ t`` and
+``m − Σ (R d) × τ t`` with t the tendon path's tangent, solved pointwise by fixed-point
+iteration; Capstan friction fades τ with the path's turning angle, found by Picard iteration
+on the tension profile (a BVP solve per iteration). Point forces (tendon disks, point loads) make
 ``n`` and ``m`` jump. The rod is split at every disk, marker and load into segments that share
 one normalised abscissa, so that ``scipy.integrate.solve_bvp`` solves all of them at once with
 the jumps — which depend on the neighbouring disk positions through the tendon path and the
@@ -29,6 +35,11 @@ def quat_to_rot(Q):
         np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
         np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
     ], -2)
+
+
+def _angle(a, b):
+    """Angles between unit vectors (rows), accurate for small angles."""
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
 
 
 def rot_to_quat(R):
@@ -57,6 +68,10 @@ class CosseratBVP:
         self.nseg = len(self.cuts) - 1
         self.R0 = np.array(robot.base_rotation)
         self.p0 = np.array(robot.base_position)
+        # continuous tendons under tension: (index, offset d, d′); their tension profile
+        self.routed = [(j, t) for j, t in enumerate(robot.tendons)
+                       if t.continuous and self.T[j] != 0]
+        self.fade = [lambda X: np.ones_like(X) for _ in self.routed]  # τ / T along the rod
 
     def _radius(self, X):
         return self.robot.rod.radius(X)
@@ -71,12 +86,7 @@ class CosseratBVP:
             R = quat_to_rot(Q)
             rad = self._radius(X)
             A, I = np.pi * rad**2, np.pi * rad**4 / 4
-            n_loc = np.einsum("mji,jm->im", R, n)
-            m_loc = np.einsum("mji,jm->im", R, m)
-            v = np.array([1.0, 0, 0])[:, None] + n_loc / np.array([self.E * A, self.G * A, self.G * A])
-            if not self.shear:
-                v[1:] = 0.0
-            u = m_loc / np.array([self.G * 2 * I, self.E * I, self.E * I])
+            v, u = self._strains(X, R, n, m, A, I, lam)
             dr = np.einsum("mij,jm->im", R, v)
             w, x, yq, z = Q / np.linalg.norm(Q, axis=0)
             ux, uy, uz = u
@@ -86,6 +96,37 @@ class CosseratBVP:
             dm = -np.cross(dr.T, n.T).T
             out[13 * k:13 * k + 13] = (b - a) * np.concatenate([dr, dQ, dn, dm])
         return out
+
+    def _strains(self, X, R, n, m, A, I, lam):
+        """v and u (body frame, (3, points)) from the section's total n and m (global)."""
+        n_loc = np.einsum("mji,jm->im", R, n)
+        m_loc = np.einsum("mji,jm->im", R, m)
+        stiff_n = np.array([self.E * A, self.G * A, self.G * A])
+        stiff_m = np.array([self.G * 2 * I, self.E * I, self.E * I])
+        v = np.array([1.0, 0, 0])[:, None] + n_loc / stiff_n
+        u = m_loc / stiff_m
+        if not self.shear:
+            v[1:] = 0.0
+        if not self.routed:
+            return v, u
+        for _ in range(200):  # the tendons' share depends on the strains through t
+            n_rod, m_rod = n_loc.copy(), m_loc.copy()
+            for (j, t), fade in zip(self.routed, self.fade):
+                d = t.offset(X, self.L).T
+                w = v + np.cross(u.T, d.T).T + (t.offset(self.L, self.L)[0]
+                                                - t.offset(0.0, self.L)[0])[:, None] / self.L
+                pull = lam * self.T[j] * fade(X) * w / np.linalg.norm(w, axis=0)
+                n_rod -= pull
+                m_rod -= np.cross(d.T, pull.T).T
+            v_new = np.array([1.0, 0, 0])[:, None] + n_rod / stiff_n
+            if not self.shear:
+                v_new[1:] = 0.0
+            u_new = m_rod / stiff_m
+            change = max(np.abs(v_new - v).max(), np.abs(u_new - u).max() * self.L)
+            v, u = v_new, u_new
+            if change < 1e-14:
+                return v, u
+        raise RuntimeError("reference BVP: the tendons' share of the section did not converge")
 
     def _frames_at_cuts(self, ya, yb):
         """Position and rotation at every cut (from the segment starting there, or ending)."""
@@ -101,7 +142,7 @@ class CosseratBVP:
         M = np.zeros((self.nseg + 1, 3))
         cut_index = {x: i for i, x in enumerate(self.cuts)}
         for j, t in enumerate(self.robot.tendons):
-            if self.T[j] == 0:
+            if self.T[j] == 0 or t.continuous:
                 continue
             idx = [cut_index[x] for x in t.disks]
             d = t.offset(np.array(t.disks), self.L)
@@ -142,7 +183,54 @@ class CosseratBVP:
         res += [tip[7:10] - F[-1], tip[10:13] - M[-1]]
         return np.concatenate(res)
 
-    def solve(self, steps=(0.25, 0.5, 0.75, 1.0), nodes=11, tol=1e-7):
+    def solve(self, steps=(0.25, 0.5, 0.75, 1.0), nodes=11, tol=1e-7, picard=30):
+        """Load steps, then (continuous tendons with friction) Picard iterations on their
+        tension profiles until the tip moves less than 1e-10 m."""
+        self._solve(steps, nodes, tol)
+        if not any(t.friction for _, t in self.routed):
+            return self
+        tip = self.position(self.L)
+        for _ in range(picard):
+            fades = []
+            for j, t in self.routed:
+                X, theta = self.turning_angle(t)
+                fades.append(lambda x, X=X, f=np.exp(-t.friction * theta): np.interp(x, X, f))
+            self.fade = fades
+            self._solve((1.0,), nodes, tol, warm=True)
+            new_tip = self.position(self.L)
+            if np.linalg.norm(new_tip - tip) < 1e-10:
+                return self
+            tip = new_tip
+        raise RuntimeError("reference BVP: the friction tension profile did not converge")
+
+    def turning_angle(self, t, n=4001):
+        """The angle a continuous tendon's path has turned through from the actuator (arriving
+        along the base's x axis) to X: the path's tangent ``R (v + u × d + d′)`` from the
+        solution's strains on a fine grid, the angles between neighbours summed."""
+        X = np.linspace(0.0, self.L, n)
+        tangents = []
+        for k in range(self.nseg):
+            a, b = self.cuts[k], self.cuts[k + 1]
+            inside = (X >= a) & ((X < b) | (k == self.nseg - 1))
+            Xs = X[inside]
+            Y = self.solution.sol((Xs - a) / (b - a))[13 * k:13 * k + 13]
+            R = quat_to_rot(Y[3:7])
+            rad = self._radius(Xs)
+            v, u = self._strains(Xs, R, Y[7:10], Y[10:13], np.pi * rad**2, np.pi * rad**4 / 4,
+                                 1.0)
+            slope = (t.offset(self.L, self.L)[0] - t.offset(0.0, self.L)[0]) / self.L
+            w = v + np.cross(u.T, t.offset(Xs, self.L)).T + slope[:, None]
+            tangents.append(np.einsum("mij,jm->mi", R, w / np.linalg.norm(w, axis=0)))
+        tangent = np.concatenate(tangents)
+        first = _angle(tangent[:1], self.R0[:, 0])[0]
+        turns = _angle(tangent[1:], tangent[:-1])
+        return X, first + np.concatenate([[0.0], np.cumsum(turns)])
+
+    def tendon_points(self, t, X):
+        d = t.offset(X, self.L)
+        return np.array([p + R @ d[i] for i, (p, R) in enumerate(map(self.frame, X))])
+
+    def _solve(self, steps, nodes, tol, warm=False):
         s = np.linspace(0.0, 1.0, nodes)
         y = np.zeros((13 * self.nseg, s.size))
         q0 = rot_to_quat(self.R0)
@@ -151,6 +239,8 @@ class CosseratBVP:
             y[13 * k:13 * k + 3] = self.p0[:, None] + self.R0[:, :1] * X
             y[13 * k + 3:13 * k + 7] = q0[:, None]
         sol = None
+        if warm:
+            s, y = self.solution.x, self.solution.y
         for lam in steps:
             sol = solve_bvp(lambda s, y: self.ode(s, y, lam), lambda a, b: self.bc(a, b, lam),
                             s, y, tol=tol, max_nodes=20000)
@@ -158,7 +248,6 @@ class CosseratBVP:
                 raise RuntimeError(f"reference BVP failed at load factor {lam}: {sol.message}")
             s, y = sol.x, sol.y
         self.solution = sol
-        return self
 
     def frame(self, X):
         """Position and rotation matrix of the cross-section at X."""
@@ -168,9 +257,16 @@ class CosseratBVP:
         return Y[:3], quat_to_rot(Y[3:7, None])[0]
 
     def tendon_length_changes(self):
-        """Every tendon's path length through its disks minus that on the straight rod."""
+        """Every tendon's path length through its disks (or along the rod, continuous) minus
+        that on the straight rod."""
         out = {}
         for t in self.robot.tendons:
+            if t.continuous:  # chords of a fine grid: O(h²), h = L / 8000
+                X = np.linspace(0.0, self.L, 8001)
+                slope = np.linalg.norm(t.offset(self.L, self.L) - t.offset(0.0, self.L)) / self.L
+                out[t.name] = float(np.linalg.norm(np.diff(self.tendon_points(t, X), axis=0),
+                                                   axis=1).sum() - self.L * np.hypot(1, slope))
+                continue
             X = np.array(t.disks)
             d = t.offset(X, self.L)
             pts = np.array([p + R @ d[i] for i, (p, R) in enumerate(map(self.frame, X))])

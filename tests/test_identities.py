@@ -20,7 +20,7 @@ def frames(model, q):
 
 
 def lengths(model, q):
-    return tendons.length_changes(model.structure, model.values, poses(model.values, q)[0])
+    return tendons.length_changes(model.structure, model.values, poses(model.values, q)[0], q)
 
 
 def actuation(model, q, friction):

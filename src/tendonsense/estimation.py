@@ -124,8 +124,11 @@ class Problem:
     def rest_lengths(self) -> np.ndarray:
         """Every tendon's path length on the straight rod (l* of eq. 9), m."""
         rest = np.zeros(len(self.robot.tendons))
-        for idx, grp in zip(self.model.structure.groups, self.model.values.tendons):
+        structure, values = self.model.structure, self.model.values
+        for idx, grp in zip(structure.groups, values.tendons):
             rest[list(idx)] = np.asarray(grp.rest_length)
+        if structure.continuous:
+            rest[list(structure.continuous)] = np.asarray(values.continuous.rest_length)
         return rest
 
     def reading_error(self, T: np.ndarray, y: np.ndarray) -> str | None:

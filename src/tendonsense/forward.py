@@ -149,7 +149,7 @@ class Derivatives:
 def _output_jacobian_fn(structure):
     def outputs(q, values):
         return (marker_positions(structure, values, q),
-                tendons.length_changes(structure, values, poses(values, q)[0]))
+                tendons.length_changes(structure, values, poses(values, q)[0], q))
 
     return jax.jit(jax.jacfwd(outputs))
 

@@ -239,7 +239,7 @@ def _snapshot_fns(structure: Structure):
 
     def measurements(q, values):
         return (marker_positions(structure, values, q),
-                tendons.length_changes(structure, values, poses(values, q)[0]))
+                tendons.length_changes(structure, values, poses(values, q)[0], q))
 
     def jacobians(q, values, drive):
         theta = {k: getattr(values, k) for k in PARAMETERS}

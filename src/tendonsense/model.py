@@ -35,6 +35,7 @@ class Structure:
     n_tendons: int
     numerics: Numerics
     n_elements: int = 1  # 1: the paper's global basis; more: an elements basis
+    continuous: tuple[int, ...] = ()  # tendons routed continuously along the rod
 
     def basis(self, X, values: "Values", xp=np):
         """``Φξ(X)`` with the bounds and length of ``values`` (traceable with ``xp=jnp``)."""
@@ -66,6 +67,22 @@ class TendonGroup(NamedTuple):
     rest_length: jax.Array  # (k,) l* of eq. 9, the path length on the straight rod
 
 
+class ContinuousTendons(NamedTuple):
+    """Tendons along the whole rod at their offsets, at ``m`` Gauss points of every grid
+    interval. Their path tangent in the body frame is ``w = ν + ω × d + d′ = A q + c``, linear
+    in q, so that the length ``∫ |w| dX`` needs no poses."""
+
+    A: jax.Array  # (k, n_int, m, 3, nq)
+    c: jax.Array  # (k, n_int, m, 3), w on the straight rod
+    dA: jax.Array  # (k, n_int, m, 3, nq), ∂w′/∂q (d is linear in X: c′ = 0)
+    A_ends: jax.Array  # (k, n_int, 2, 3, nq) at both ends of every interval (inside it)
+    c_ends: jax.Array  # (k, n_int, 2, 3)
+    Omega: jax.Array  # (n_int, m, 3, nq): ω = Omega q at the points
+    weights: jax.Array  # (n_int, m) Gauss weights, m
+    cumulative: jax.Array  # (m, m) ∫ from an interval's start to point k, per unit length
+    rest_length: jax.Array  # (k,) ∫ |c| dX
+
+
 class Values(NamedTuple):
     """Every number of a discretised robot (a pytree of arrays, traced at run time)."""
 
@@ -81,6 +98,7 @@ class Values(NamedTuple):
     gravity_weights: jax.Array  # (n_int, 4): ∫ A p dX = Σ w · [p_i, p'_i, p_{i+1}, p'_{i+1}]
     stretch_ends: jax.Array  # (n_int, 2, 3, nq) the basis of ν at every interval's two ends
     tendons: tuple[TendonGroup, ...]
+    continuous: ContinuousTendons | None
     marker_X: jax.Array  # (n_m,)
     marker_offsets: jax.Array  # (n_m, 3)
     mass_X: jax.Array  # (n_mass,) where the lumped masses sit
@@ -170,8 +188,11 @@ class Model:
         ends = np.stack([basis(nodes[:-1]), basis(nodes[1:], side="left")], axis=1)[:, :, 3:]
 
         groups, tendon_values = [], []
-        for nd in sorted({len(t.disks) for t in robot.tendons}):
-            idx = [i for i, t in enumerate(robot.tendons) if len(t.disks) == nd]
+        continuous = tuple(i for i, t in enumerate(robot.tendons) if t.continuous)
+        routed = [t for t in robot.tendons if not t.continuous]
+        for nd in sorted({len(t.disks) for t in routed}):
+            idx = [i for i, t in enumerate(robot.tendons)
+                   if len(t.disks) == nd and not t.continuous]
             Xd = np.array([robot.tendons[i].disks for i in idx])
             d = np.stack([robot.tendons[i].offset(Xd[k], L) for k, i in enumerate(idx)])
             straight = d + Xd[..., None] * np.array([1.0, 0.0, 0.0])
@@ -189,6 +210,7 @@ class Model:
             radius_z=np.stack([rod.radius(z1), rod.radius(z2)], axis=1),
             K_axial=K_axial, K_shear=K_shear, stretch_unit=b, gravity_weights=gw,
             stretch_ends=ends, tendons=tuple(tendon_values),
+            continuous=_continuous(robot, basis, nodes, continuous) if continuous else None,
             marker_X=np.array([m.X for m in robot.markers], float),
             marker_offsets=np.array([m.offset for m in robot.markers], float).reshape(-1, 3),
             mass_X=np.array([m.X for m in robot.masses], float),
@@ -199,7 +221,7 @@ class Model:
             friction=np.array([t.friction for t in robot.tendons], float).reshape(-1),
             energy_floor=np.float64(1e-6 * np.sqrt(r0**4 / L)))
         structure = Structure(tuple(robot.strain), tuple(groups), len(robot.tendons),
-                              robot.numerics, len(bounds) - 1)
+                              robot.numerics, len(bounds) - 1, continuous)
         return Model(robot, structure, values)
 
     def with_values(self, **changes) -> "Model":
@@ -226,6 +248,53 @@ def points_at(structure: Structure, values: Values, X) -> PointSet:
     h = X - x0
     return PointSet(start, h, structure.basis(x0 + (0.5 - _Z) * h, values, jnp),
                     structure.basis(x0 + (0.5 + _Z) * h, values, jnp))
+
+
+#: Gauss points per grid interval of a continuously routed tendon's path integrals
+CONTINUOUS_POINTS = 4
+
+
+def _continuous(robot: Robot, basis, nodes: np.ndarray, index) -> ContinuousTendons:
+    """The path-integral data of the continuously routed tendons ``index``."""
+    L, h = robot.rod.length, np.diff(nodes)
+    m = CONTINUOUS_POINTS
+    xg, wg = np.polynomial.legendre.leggauss(m)
+    u = 0.5 * (xg + 1)
+    X = nodes[:-1, None] + h[:, None] * u  # (n_int, m)
+    n_int, nq = X.shape[0], basis.n
+    Phi = basis(X.ravel()).reshape(n_int, m, 6, nq)
+    dPhi = np.asarray(jax.vmap(jax.jacfwd(lambda x: basis(x[None], None, jnp)[0]))(
+        jnp.asarray(X.ravel()))).reshape(n_int, m, 6, nq)
+    Phi_ends = np.stack([basis(nodes[:-1]), basis(nodes[1:], side="left")], axis=1)
+    A, c, dA, A_ends, c_ends = [], [], [], [], []
+    for i in index:
+        t = robot.tendons[i]
+        slope = np.r_[0.0, (np.array(t.offset_tip) - t.offset_base) / L]  # d′
+        for Xs, P, out_A, out_c in ((X, Phi, A, c), (np.stack([nodes[:-1], nodes[1:]], 1),
+                                                     Phi_ends, A_ends, c_ends)):
+            d = t.offset(Xs.ravel(), L).reshape(Xs.shape + (3,))
+            out_A.append(P[..., 3:, :] - _skew(d) @ P[..., :3, :])  # ν + ω × d
+            out_c.append(np.broadcast_to(np.r_[1.0, 0.0, 0.0] + slope, Xs.shape + (3,)))
+        d = t.offset(X.ravel(), L).reshape(n_int, m, 3)
+        dA.append(dPhi[..., 3:, :] - _skew(d) @ dPhi[..., :3, :] - _skew(slope) @ Phi[..., :3, :])
+    weights = 0.5 * h[:, None] * wg
+    # cumulative integration of the interpolant through the m points, on [0, 1]
+    V_inv = np.linalg.inv(np.polynomial.legendre.legvander(xg, m - 1))
+    cumulative = np.stack([0.5 * np.polynomial.legendre.legval(
+        xg, np.polynomial.legendre.legint(V_inv[:, j], lbnd=-1)) for j in range(m)], axis=1)
+    c = np.array(c)
+    return ContinuousTendons(np.array(A), c, np.array(dA), np.array(A_ends), np.array(c_ends),
+                             Phi[..., :3, :], weights, cumulative,
+                             np.einsum("im,kim->k", weights, np.linalg.norm(c, axis=-1)))
+
+
+def _skew(v):
+    """Skew matrices of vectors (..., 3) → (..., 3, 3), ``_skew(a) @ b = a × b``."""
+    v = np.asarray(v, float)
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
+                     np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
 
 
 def _grid(L: float, uniform: np.ndarray, special: np.ndarray) -> np.ndarray:

@@ -27,14 +27,17 @@ class RobotFileError(ValueError):
 
 @dataclass(frozen=True)
 class Tendon:
-    """A tendon through guide disks at ``disks`` (material abscissae, the last one its anchor);
-    offset ``d(X) = [0, y, z]`` linear in X from ``offset_base`` (X = 0) to ``offset_tip`` (X = L)."""
+    """A tendon through guide disks at ``disks`` (material abscissae, the last one its anchor),
+    or ``continuous``: along the whole rod at its offset (the limit of infinitely many disks;
+    ``disks`` is then ``(0, L)``); offset ``d(X) = [0, y, z]`` linear in X from
+    ``offset_base`` (X = 0) to ``offset_tip`` (X = L)."""
 
     name: str
     offset_base: tuple[float, float]
     offset_tip: tuple[float, float]
     friction: float
     disks: tuple[float, ...]
+    continuous: bool = False
 
     def offset(self, X, length: float) -> np.ndarray:
         """Cross-section offset ``[0, y, z]`` at X, shape (n, 3)."""
@@ -323,7 +326,8 @@ def _unique(names, what, reader):
 
 
 def _parse_rod(r: _Reader) -> Rod:
-    r.check_keys(("length", "radius", "young_modulus", "poisson_ratio", "density"))
+    r.check_keys(("length", "radius", "young_modulus", "poisson_ratio", "density",
+                  "disk_radius"))
     L = r.number("length", low=0.0, low_open=True)
     if not r.has("radius"):
         r.fail("radius", "missing")
@@ -344,9 +348,13 @@ def _parse_rod(r: _Reader) -> Rod:
         knots = [(0.0, rb), (L, rt)]
     if any(rr <= 0 for _, rr in knots):
         r.fail("radius", "every radius must be > 0")
+    disk_radius = r.number("disk_radius", low=0.0, low_open=True) if r.has("disk_radius") else None
+    if disk_radius is not None and disk_radius < max(rr for _, rr in knots):
+        r.fail("disk_radius", f"spacer disks ({disk_radius:g} m) must be at least as wide as "
+                              f"the rod ({max(rr for _, rr in knots):g} m)")
     return Rod(L, tuple(knots), r.number("young_modulus", low=0.0, low_open=True),
                r.number("poisson_ratio", low=-1.0, high=0.5, low_open=True),
-               r.number("density", low=0.0))
+               r.number("density", low=0.0), disk_radius)
 
 
 def _parse_tendon(r: _Reader, rod: Rod) -> Tendon:
@@ -358,7 +366,10 @@ def _parse_tendon(r: _Reader, rod: Rod) -> Tendon:
         r.fail("disks", "missing (a count, or a list of X)")
     raw = r.table["disks"]
     L = rod.length
-    if isinstance(raw, int) and not isinstance(raw, bool):
+    continuous = raw == "continuous"
+    if continuous:
+        disks = (0.0, L)
+    elif isinstance(raw, int) and not isinstance(raw, bool):
         if raw < 2:
             r.fail("disks", f"must be at least 2 disks, got {raw}")
         disks = tuple(np.linspace(0.0, L, raw))
@@ -371,16 +382,33 @@ def _parse_tendon(r: _Reader, rod: Rod) -> Tendon:
         if any(b <= a for a, b in zip(disks, disks[1:])):
             r.fail("disks", "disk positions must be strictly increasing")
     else:
-        r.fail("disks", f"must be a count or a list of X, got {raw!r}")
-    t = Tendon(name, ob, ot, mu, disks)
-    X = np.array(disks)
-    reach = np.linalg.norm(t.offset(X, L), axis=1) / rod.radius(X)
-    worst = int(np.argmax(reach))
-    if reach[worst] > REACHABLE_RADIUS_FACTOR:
-        r.fail("offset_base", f"tendon {name!r} at X = {X[worst]:g} m sits "
-               f"{reach[worst]:.2f} rod radii from the centre line, outside the reachable radius "
-               f"({REACHABLE_RADIUS_FACTOR:g} radii)")
+        r.fail("disks", f'must be a count, a list of X or "continuous", got {raw!r}')
+    t = Tendon(name, ob, ot, mu, disks, continuous)
+    _check_reach(r, t, rod)
     return t
+
+
+def _check_reach(r: _Reader, t: Tendon, rod: Rod):
+    """A tendon's offset must lie on the spacer disks (``rod.disk_radius``) or, without them,
+    within :data:`REACHABLE_RADIUS_FACTOR` local rod radii (a tendon inside the body)."""
+    L = rod.length
+    X = np.linspace(0.0, L, 201) if t.continuous else np.array(t.disks)
+    offset = np.linalg.norm(t.offset(X, L), axis=1)
+    limit = (np.full_like(X, rod.disk_radius) if rod.disk_radius is not None
+             else REACHABLE_RADIUS_FACTOR * rod.radius(X))
+    worst = int(np.argmax(offset / limit))
+    if offset[worst] <= limit[worst] * (1 + 1e-12):
+        return
+    key = "offset_base" if offset[0] / limit[0] >= offset[-1] / limit[-1] else "offset_tip"
+    varies = np.ptp(offset / limit) > 1e-9 * offset[worst] / limit[worst]
+    where = f" at X = {X[worst]:g} m" if varies else ""
+    if rod.disk_radius is not None:
+        r.fail(key, f"tendon {t.name!r} sits {offset[worst]:g} m from the centre line{where}, "
+                    f"beyond the spacer disks (rod.disk_radius = {rod.disk_radius:g} m)")
+    r.fail(key, f"tendon {t.name!r} sits {offset[worst]:g} m from the centre line{where}, "
+                f"outside the reachable radius of a tendon inside the body "
+                f"({REACHABLE_RADIUS_FACTOR:g} rod radii = {limit[worst]:g} m); for spacer disks "
+                f"wider than the rod, set rod.disk_radius")
 
 
 # ----------------------------------------------------------------------------- writing
@@ -395,7 +423,10 @@ def robot_to_toml(robot: Robot) -> str:
     else:
         lines.append("radius = [" + ", ".join(f"[{f(x)}, {f(r)}]" for x, r in rod.radius_knots) + "]")
     lines += [f"young_modulus = {f(rod.young_modulus)}", f"poisson_ratio = {f(rod.poisson_ratio)}",
-              f"density = {f(rod.density)}", "", "[strain]"]
+              f"density = {f(rod.density)}"]
+    if rod.disk_radius is not None:
+        lines.append(f"disk_radius = {f(rod.disk_radius)}")
+    lines += ["", "[strain]"]
     lines += [f"{m} = {d}" for m, d in robot.strain]
     if robot.elements:
         lines.append(f"elements = {_vec(robot.elements)}")
@@ -409,7 +440,7 @@ def robot_to_toml(robot: Robot) -> str:
     for t in robot.tendons:
         lines += ["", "[[tendon]]", f"name = {_q(t.name)}", f"offset_base = {_vec(t.offset_base)}",
                   f"offset_tip = {_vec(t.offset_tip)}", f"friction = {f(t.friction)}",
-                  f"disks = {_vec(t.disks)}"]
+                  'disks = "continuous"' if t.continuous else f"disks = {_vec(t.disks)}"]
     for m in robot.markers:
         lines += ["", "[[marker]]", f"name = {_q(m.name)}", f"X = {f(m.X)}", f"offset = {_vec(m.offset)}"]
     for m in robot.masses:

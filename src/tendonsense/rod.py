@@ -17,6 +17,7 @@ class Rod:
     young_modulus: float
     poisson_ratio: float
     density: float
+    disk_radius: float | None = None  # spacer disks wider than the rod; None: tendons inside
 
     def radius(self, X) -> np.ndarray:
         Xk, rk = np.array(self.radius_knots).T

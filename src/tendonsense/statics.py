@@ -100,7 +100,10 @@ def terms(structure: Structure, values: Values, q, z, drive: Drive, unknowns: Un
     load = pull((jnp.tensordot(T, unit, axes=1) + weight_g, weight_nu, *point))[0]
     zeros = [jnp.zeros_like(nu), *(jnp.zeros_like(c) for c in point)]
     B = jax.vmap(lambda c: pull((c, *zeros))[0])(unit).T
-    return Terms(grid, B, tendons.length_changes(structure, values, grid), T, load)
+    if structure.continuous:
+        continuous = tendons.continuous_actuation(structure, values, q, values.friction)
+        B, load = B + continuous, load + continuous @ T
+    return Terms(grid, B, tendons.length_changes(structure, values, grid, q), T, load)
 
 
 class Scaling(NamedTuple):
@@ -266,7 +269,7 @@ def _outputs_fn(structure: Structure):
         markers = points_at(structure, values, values.marker_X)
         grid, bb, mk = poses(values, q, backbone, markers)
         return (positions(mk, values.marker_offsets), positions(bb),
-                tendons.length_changes(structure, values, grid), admissible(values, q))
+                tendons.length_changes(structure, values, grid, q), admissible(values, q))
 
     return Program(out, "outputs", structure)
 

@@ -1,5 +1,6 @@
 """Tendons: path through the guide disks, length change (eq. 9), Capstan friction (eq. 10–13)
-and the actuation matrix ``B(q)`` (eq. 14).
+and the actuation matrix ``B(q)`` (eq. 14); and tendons routed continuously along the rod
+(the limit of infinitely many disks), by path integrals.
 
 Tendons with the same number of disks are computed together (leading axis k)."""
 
@@ -10,7 +11,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .kinematics import force_cotangent, poses
-from .lie import safe_norm
 from .model import Structure, TendonGroup, Values
 
 
@@ -22,15 +22,55 @@ def path(group: TendonGroup, g):
     return at, r
 
 
-def length_changes(structure: Structure, values: Values, g):
+def length_changes(structure: Structure, values: Values, g, q):
     """``y = Σ ‖r_{i+1} − r_i‖ − l*`` for every tendon (eq. 9), shape (n_t,), from the grid
-    poses ``g``."""
+    poses ``g``; ``y = ∫ |w| dX − l*`` for a continuous one (strains ``q``)."""
     y = jnp.zeros(structure.n_tendons)
     for index, grp in zip(structure.groups, values.tendons):
         _, r = path(grp, g)
         lengths = jnp.sum(jnp.linalg.norm(jnp.diff(r, axis=1), axis=2), axis=1)
         y = y.at[np.array(index)].set(lengths - grp.rest_length)
+    if structure.continuous:
+        ct = values.continuous
+        lengths = jnp.einsum("im,kim->k", ct.weights, jnp.linalg.norm(_tangents(ct, q), axis=-1))
+        y = y.at[np.array(structure.continuous)].set(lengths - ct.rest_length)
     return y
+
+
+def _tangents(ct, q):
+    """The continuous tendons' path tangents ``w = A q + c`` (body frame), (k, n_int, m, 3)."""
+    return ct.A @ q + ct.c
+
+
+def continuous_actuation(structure: Structure, values: Values, q, friction):
+    """The generalized force of a unit tension of every continuously routed tendon, (nq, n_t)
+    (zero columns for the others): ``−∫ T(X)/T₀ ∂|w|/∂q dX``, the virtual work of a tendon
+    whose tension fades by ``exp(−μ θ(X))`` with the angle θ its path has turned through since
+    the actuator (eq. 10 in the limit of infinitely many disks): its pull at the anchor, the
+    distributed pressure on the curved path and the friction along it."""
+    nq = structure.nq
+    if not structure.continuous:
+        return jnp.zeros((nq, structure.n_tendons))
+    ct, index = values.continuous, np.array(structure.continuous)
+    w = _tangents(ct, q)
+    size = jnp.sqrt(jnp.sum(w * w, axis=-1, keepdims=True))  # ≈ 1 + ε: never 0
+    unit = w / size
+    dw = ct.dA @ q
+    omega = ct.Omega @ q  # (n_int, m, 3)
+    turning = jnp.cross(omega, unit) + (dw - unit * jnp.sum(unit * dw, -1, keepdims=True)) / size
+    rate = _norm(turning)  # |t′|, (k, n_int, m)
+    ends = ct.A_ends @ q + ct.c_ends  # (k, n_int, 2, 3)
+    ends = ends / jnp.sqrt(jnp.sum(ends * ends, axis=-1, keepdims=True))
+    entry = _angle(jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0]), ends[:, :1, 0].shape),
+                   ends[:, :1, 0])[:, 0]  # from the actuator along the base's x axis
+    kinks = _angle(ends[:, :-1, 1], ends[:, 1:, 0])  # where elements meet, (k, n_int − 1)
+    per_interval = jnp.sum(ct.weights * rate, axis=-1)
+    start = entry[:, None] + jnp.concatenate(
+        [jnp.zeros((len(index), 1)), jnp.cumsum(per_interval[:, :-1] + kinks, axis=1)], axis=1)
+    theta = start[..., None] + values.h[:, None] * (rate @ ct.cumulative.T)
+    pull = (ct.weights * jnp.exp(-friction[index][:, None, None] * theta))[..., None] * unit
+    B = -jnp.einsum("kima,kimaq->qk", pull, ct.A)
+    return jnp.zeros((nq, structure.n_tendons)).at[:, index].set(B)
 
 
 def unit_cotangents(structure: Structure, values: Values, g, friction):
@@ -63,11 +103,18 @@ def actuation(structure: Structure, values: Values, q, friction):
     """``B(q)`` of eq. 14, shape (nq, n_t): the generalized force of a unit tension, the
     pull-back of :func:`unit_cotangents` through the grid poses."""
     g, pull = jax.vjp(lambda q: poses(values, q)[0], q)
-    return jax.vmap(lambda c: pull(c)[0])(unit_cotangents(structure, values, g, friction)).T
+    return (jax.vmap(lambda c: pull(c)[0])(unit_cotangents(structure, values, g, friction)).T
+            + continuous_actuation(structure, values, q, friction))
 
 
 def _angle(a, b):
     """Angle between unit vectors (last axis), ``2 atan2(|a − b|, |a + b|)``; its derivative at a
     straight pass (angle 0, where the Capstan law has a kink) is taken as 0."""
-    n = jax.vmap(jax.vmap(safe_norm))
-    return 2.0 * jnp.arctan2(n(a - b), n(a + b))
+    return 2.0 * jnp.arctan2(_norm(a - b), _norm(a + b))
+
+
+def _norm(x):
+    """Euclidean norms over the last axis, with derivative 0 at 0 (:func:`~.lie.safe_norm`)."""
+    s = jnp.sum(x * x, axis=-1)
+    pos = s > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, s, 1.0)), 0.0)

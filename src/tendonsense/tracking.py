@@ -167,7 +167,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
     def finish(carry, d, values, x, ok, fine, H, dx_dm, evals, jacs):
         grid, g = poses(values, x[:nq], points_at(structure, values, values.marker_X))
         markers = positions(g, values.marker_offsets)
-        y = tendons.length_changes(structure, values, grid)
+        y = tendons.length_changes(structure, values, grid, x[:nq])
         # a failed sample leaves the carry as it was: the next one starts from the last good
         new = Carry(x, H, dx_dm, measurements(d), ok, carry.count + 1)
         keep = carry._replace(count=carry.count + 1)
