@@ -110,3 +110,15 @@ def test_basis_convergence_moves_loaded_tip_less_than_1mm(prototype):
     moved = np.linalg.norm(base.markers["tip"] - finer.markers["tip"])
     assert moved < 1e-3
     assert np.linalg.norm(base.markers["tip"] - np.array([0.25, 0, 0])) > 0.02  # really loaded
+
+
+def test_basis_derivatives_match_autodiff():
+    """dΦ/dX of both bases (continuous tendons' turning rate) against autodiff in X."""
+    import jax.numpy as jnp
+
+    from tendonsense.basis import ElementsBasis, LegendreBasis
+    X = np.linspace(0.001, 0.499, 37)
+    for b in (LegendreBasis(0.5, {"torsion": 2, "bending_y": 4, "elongation": 3}),
+              ElementsBasis((0.0, 0.1, 0.3, 0.5), {"torsion": 1, "bending_y": 3})):
+        auto = jax.vmap(jax.jacfwd(lambda x: b(x[None], None, jnp)[0]))(jnp.asarray(X))
+        np.testing.assert_allclose(b(X, derivative=True), auto, atol=1e-12 * np.abs(auto).max())

@@ -8,7 +8,7 @@ import pytest
 from conftest import ROOT
 from cosserat_bvp import CosseratBVP
 from tendonsense.forward import forward_kinematics, model_for, solve
-from tendonsense.robot import RobotFileError, load_robot, parse_robot, robot_to_toml
+from tendonsense.robot import RobotFileError, load_robot, robot_to_toml
 
 PEER = ROOT / "examples" / "spacer_disk_robot.toml"
 #: the peer's shooting solution (Till & Rucker's continuum-robot statics examples): the tip
@@ -110,7 +110,18 @@ def test_continuous_tendons_in_the_inverse_problems(peer):
         model.structure, model.values, poses(model.values, q)[0], q))(q))
     np.testing.assert_allclose(B, -dy.T, atol=1e-12 * np.abs(B).max())
 
+    # the analytic derivatives of the continuous tendons' forces (in q and μ) against plain
+    # forward-mode autodiff through the same forces
     rough = with_tendons(peer, friction=0.2)
+    m = model_for(rough)
+    mu = np.asarray(m.values.friction)
+    exact = jax.jacfwd(lambda q, mu: tendons.continuous_actuation(
+        m.structure, m.values, q, mu), argnums=(0, 1))(q, mu)
+    plain = jax.jacfwd(lambda q, mu: tendons._continuous(
+        q, mu, m.values.continuous, m.values.h)[0].T, argnums=(0, 1))(q, mu)
+    for a, b in zip(exact, plain):
+        np.testing.assert_allclose(a, b, atol=1e-12 * np.abs(b).max())
+
     f = (0.0, 0.3, -0.5)
     truth = solve(rough, {"t1": 15.0, "t2": 4.0}, [(0.5, f)])
     fk = forward_kinematics(rough, {"t1": truth.displacements["t1"]}, {"t2": 4.0}, [(0.5, f)])

@@ -49,15 +49,22 @@ class LegendreBasis:
                 start += k
         return out
 
-    def __call__(self, X, length=None, xp=np, side="right"):
+    def __call__(self, X, length=None, xp=np, side="right", derivative=False):
         """``Φξ(X)``, shape (len(X), 6, n); with ``xp=jax.numpy`` X and ``length`` may be traced
         (a point at a run-time X, differentiable in X). ``side`` is that of
-        :meth:`ElementsBasis.__call__` (one element here: no effect)."""
+        :meth:`ElementsBasis.__call__` (one element here: no effect); ``derivative`` gives
+        ``dΦξ/dX`` instead."""
         X = xp.atleast_1d(xp.asarray(X, dtype=float))
-        s = 2.0 * X / (self.length if length is None else length) - 1.0
+        L = self.length if length is None else length
+        s = 2.0 * X / L - 1.0
         P = [xp.ones_like(s), s]  # Bonnet: (k+1) P_{k+1} = (2k+1) s P_k − k P_{k−1}
         for k in range(1, max(self.degrees.values(), default=0)):
             P.append(((2 * k + 1) * s * P[k] - k * P[k - 1]) / (k + 1))
+        if derivative:  # P′_{k+1} = P′_{k−1} + (2k + 1) P_k, times ds/dX = 2 / L
+            dP = [xp.zeros_like(s), xp.ones_like(s)]
+            for k in range(1, len(P) - 1):
+                dP.append(dP[k - 1] + (2 * k + 1) * P[k])
+            P = [p * (2.0 / L) for p in dP]
         zero = xp.zeros_like(s)
         rows = {mode: [P[k] for k in range(self.degrees[mode] + 1)] for mode in self.degrees}
         cols = [[rows[mode][k] if m == mode else zero for m in MODES]
@@ -84,14 +91,17 @@ class ElementsBasis:
     def n(self) -> int:
         return self.n_elements * sum(d + 1 for d in self.degrees.values())
 
-    def __call__(self, X, bounds=None, xp=np, side="right"):
-        """``Φξ(X)``, shape (len(X), 6, n); with ``xp=jax.numpy``, X and ``bounds`` may be
-        traced."""
+    def __call__(self, X, bounds=None, xp=np, side="right", derivative=False):
+        """``Φξ(X)`` (or ``dΦξ/dX`` with ``derivative``), shape (len(X), 6, n); with
+        ``xp=jax.numpy``, X and ``bounds`` may be traced."""
         X = xp.atleast_1d(xp.asarray(X, dtype=float))
         b = xp.asarray(self.bounds if bounds is None else bounds, dtype=float)
         k = xp.clip(xp.searchsorted(b, X, side=side) - 1, 0, self.n_elements - 1)
         a, c = b[k], b[k + 1]
-        local = LegendreBasis(1.0, self.degrees)((X - a) / (c - a), 1.0, xp)
+        local = LegendreBasis(1.0, self.degrees)((X - a) / (c - a), 1.0, xp,
+                                                 derivative=derivative)
+        if derivative:
+            local = local / (c - a)[:, None, None]
         one_hot = (k[:, None] == xp.arange(self.n_elements)[None, :]).astype(float)
         blocks = one_hot[:, None, :, None] * local[:, :, None, :]
         return blocks.reshape(X.shape[0], 6, self.n)

@@ -251,7 +251,7 @@ def points_at(structure: Structure, values: Values, X) -> PointSet:
 
 
 #: Gauss points per grid interval of a continuously routed tendon's path integrals
-CONTINUOUS_POINTS = 4
+CONTINUOUS_POINTS = 3
 
 
 def _continuous(robot: Robot, basis, nodes: np.ndarray, index) -> ContinuousTendons:
@@ -263,8 +263,7 @@ def _continuous(robot: Robot, basis, nodes: np.ndarray, index) -> ContinuousTend
     X = nodes[:-1, None] + h[:, None] * u  # (n_int, m)
     n_int, nq = X.shape[0], basis.n
     Phi = basis(X.ravel()).reshape(n_int, m, 6, nq)
-    dPhi = np.asarray(jax.vmap(jax.jacfwd(lambda x: basis(x[None], None, jnp)[0]))(
-        jnp.asarray(X.ravel()))).reshape(n_int, m, 6, nq)
+    dPhi = basis(X.ravel(), derivative=True).reshape(n_int, m, 6, nq)
     Phi_ends = np.stack([basis(nodes[:-1]), basis(nodes[1:], side="left")], axis=1)
     A, c, dA, A_ends, c_ends = [], [], [], [], []
     for i in index:

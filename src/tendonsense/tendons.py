@@ -32,14 +32,9 @@ def length_changes(structure: Structure, values: Values, g, q):
         y = y.at[np.array(index)].set(lengths - grp.rest_length)
     if structure.continuous:
         ct = values.continuous
-        lengths = jnp.einsum("im,kim->k", ct.weights, jnp.linalg.norm(_tangents(ct, q), axis=-1))
+        lengths = jnp.einsum("im,kim->k", ct.weights, jnp.linalg.norm(ct.A @ q + ct.c, axis=-1))
         y = y.at[np.array(structure.continuous)].set(lengths - ct.rest_length)
     return y
-
-
-def _tangents(ct, q):
-    """The continuous tendons' path tangents ``w = A q + c`` (body frame), (k, n_int, m, 3)."""
-    return ct.A @ q + ct.c
 
 
 def continuous_actuation(structure: Structure, values: Values, q, friction):
@@ -47,30 +42,81 @@ def continuous_actuation(structure: Structure, values: Values, q, friction):
     (zero columns for the others): ``−∫ T(X)/T₀ ∂|w|/∂q dX``, the virtual work of a tendon
     whose tension fades by ``exp(−μ θ(X))`` with the angle θ its path has turned through since
     the actuator (eq. 10 in the limit of infinitely many disks): its pull at the anchor, the
-    distributed pressure on the curved path and the friction along it."""
+    distributed pressure on the curved path and the friction along it. Its derivatives in q
+    and μ are analytic (:func:`_continuous`), so that forward mode costs one pass."""
     nq = structure.nq
     if not structure.continuous:
         return jnp.zeros((nq, structure.n_tendons))
-    ct, index = values.continuous, np.array(structure.continuous)
-    w = _tangents(ct, q)
+    index = np.array(structure.continuous)
+    B = _continuous_B(q, friction[index], values.continuous, values.h)
+    return jnp.zeros((nq, structure.n_tendons)).at[:, index].set(B.T)
+
+
+@jax.custom_jvp
+def _continuous_B(q, mu, ct, h):
+    """(k, nq) unit-tension generalized forces; the geometry ``ct``, ``h`` is not
+    differentiated."""
+    return _continuous(q, mu, ct, h)[0]
+
+
+@_continuous_B.defjvp
+def _continuous_B_jvp(primals, tangents):
+    q, mu, ct, h = primals
+    dq, dmu = tangents[:2]
+    B, J_q, J_mu = _continuous(q, mu, ct, h)
+    return B, J_q @ dq + J_mu * dmu[:, None]
+
+
+def _rate(w, dw, omega):
+    """|t′| of the path (unit tangent t = R ŵ): ``|ω × ŵ + ŵ′|``, ``ŵ′ = (I − ŵŵᵀ) w′ / |w|``."""
+    size = jnp.sqrt(w @ w)
+    u = w / size
+    return _norm(jnp.cross(omega, u) + (dw - u * (u @ dw)) / size)
+
+
+def _unit_angle(a, b):
+    return _angle(a / jnp.sqrt(a @ a), b / jnp.sqrt(b @ b))
+
+
+def _continuous(q, mu, ct, h):
+    """B (k, nq) and its exact derivatives ``∂B/∂q`` (k, nq, nq) and ``∂B/∂μ`` (k, nq): the
+    angle θ is a sum of turning rates, entry and kink angles, each a function of a few local
+    path quantities linear in q, differentiated locally and carried to q by those maps."""
+    w = ct.A @ q + ct.c  # (k, n_int, m, 3)
     size = jnp.sqrt(jnp.sum(w * w, axis=-1, keepdims=True))  # ≈ 1 + ε: never 0
     unit = w / size
     dw = ct.dA @ q
-    omega = ct.Omega @ q  # (n_int, m, 3)
-    turning = jnp.cross(omega, unit) + (dw - unit * jnp.sum(unit * dw, -1, keepdims=True)) / size
-    rate = _norm(turning)  # |t′|, (k, n_int, m)
+    omega = jnp.broadcast_to(ct.Omega @ q, w.shape)
+    local = jax.vmap(jax.vmap(jax.vmap(jax.value_and_grad(_rate, argnums=(0, 1, 2)))))
+    rate, (g_w, g_dw, g_om) = local(w, dw, omega)  # (k, n_int, m), (k, n_int, m, 3) each
+    d_rate = (jnp.einsum("kima,kimaq->kimq", g_w, ct.A)
+              + jnp.einsum("kima,kimaq->kimq", g_dw, ct.dA)
+              + jnp.einsum("kima,imaq->kimq", g_om, ct.Omega))
     ends = ct.A_ends @ q + ct.c_ends  # (k, n_int, 2, 3)
-    ends = ends / jnp.sqrt(jnp.sum(ends * ends, axis=-1, keepdims=True))
-    entry = _angle(jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0]), ends[:, :1, 0].shape),
-                   ends[:, :1, 0])[:, 0]  # from the actuator along the base's x axis
-    kinks = _angle(ends[:, :-1, 1], ends[:, 1:, 0])  # where elements meet, (k, n_int − 1)
+    x_axis = jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0]), ends[:, 0, 0].shape)
+    entry, g_entry = jax.vmap(jax.value_and_grad(_unit_angle, argnums=1))(x_axis, ends[:, 0, 0])
+    d_entry = jnp.einsum("ka,kaq->kq", g_entry, ct.A_ends[:, 0, 0])  # from the actuator
+    kink_fn = jax.vmap(jax.vmap(jax.value_and_grad(_unit_angle, argnums=(0, 1))))
+    kinks, (g_a, g_b) = kink_fn(ends[:, :-1, 1], ends[:, 1:, 0])  # where elements meet
+    d_kinks = (jnp.einsum("kia,kiaq->kiq", g_a, ct.A_ends[:, :-1, 1])
+               + jnp.einsum("kia,kiaq->kiq", g_b, ct.A_ends[:, 1:, 0]))
+    k = w.shape[0]
     per_interval = jnp.sum(ct.weights * rate, axis=-1)
-    start = entry[:, None] + jnp.concatenate(
-        [jnp.zeros((len(index), 1)), jnp.cumsum(per_interval[:, :-1] + kinks, axis=1)], axis=1)
-    theta = start[..., None] + values.h[:, None] * (rate @ ct.cumulative.T)
-    pull = (ct.weights * jnp.exp(-friction[index][:, None, None] * theta))[..., None] * unit
-    B = -jnp.einsum("kima,kimaq->qk", pull, ct.A)
-    return jnp.zeros((nq, structure.n_tendons)).at[:, index].set(B)
+    d_per_interval = jnp.einsum("im,kimq->kiq", ct.weights, d_rate)
+    steps = jnp.concatenate([jnp.zeros((k, 1)), jnp.cumsum(per_interval[:, :-1] + kinks, 1)], 1)
+    d_steps = jnp.concatenate([jnp.zeros((k, 1, q.shape[0])),
+                               jnp.cumsum(d_per_interval[:, :-1] + d_kinks, 1)], 1)
+    theta = (entry[:, None] + steps)[..., None] + h[:, None] * (rate @ ct.cumulative.T)
+    d_theta = ((d_entry[:, None] + d_steps)[:, :, None]
+               + h[:, None, None] * jnp.einsum("mj,kijq->kimq", ct.cumulative, d_rate))
+    fade = ct.weights * jnp.exp(-mu[:, None, None] * theta)  # (k, n_int, m), with the weights
+    pull = jnp.einsum("kima,kimaq->kimq", unit, ct.A)  # ∂|w|/∂q
+    B = -jnp.einsum("kim,kimq->kq", fade, pull)
+    projected = (ct.A - unit[..., None] * pull[..., None, :]) / size[..., None]  # ∂ŵ/∂q
+    J_q = -(jnp.einsum("kim,kimaq,kimar->kqr", fade, ct.A, projected)
+            - jnp.einsum("kim,kimq,kimr->kqr", mu[:, None, None] * fade, pull, d_theta))
+    J_mu = jnp.einsum("kim,kimq->kq", fade * theta, pull)
+    return B, J_q, J_mu
 
 
 def unit_cotangents(structure: Structure, values: Values, g, friction):
