@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import json
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -141,6 +143,23 @@ def build_parser() -> argparse.ArgumentParser:
                    help="standard deviation of the tension sensors as a fraction of the "
                         "reading (default 0.00833, i.e. 2.5 %% / 3)")
     p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
+    p.add_argument("--view", action="store_true",
+                   help="with --readings: show the estimates live in a 3-D view in the browser "
+                        "(needs the optional package viser); a file log is replayed at its "
+                        "time stamps")
+    _view_options(p)
+
+    p = command("view", "explore a robot in a live 3-D view in the browser",
+                "Serve an interactive view of the robot's forward statics: a slider per tendon "
+                "tension and one point force (X, direction, size); the shape, disks, tendons "
+                "and markers are redrawn as they change. Needs the optional package viser "
+                "(pip install 'tendonsense[view]'). Ctrl-C ends it.")
+    p.add_argument("robot", help="the robot file (TOML)")
+    _view_options(p)
+    p.add_argument("--max-tension", type=_positive, default=5.0, metavar="N",
+                   help="the tension sliders' range, N (default 5)")
+    p.add_argument("--max-force", type=_positive, default=1.0, metavar="N",
+                   help="the point force slider's range, N (default 1)")
 
     p = command("identify", "fit stiffness, density or friction to measured poses (calibration)",
                 "Fit the Young's modulus, density and/or friction coefficients of the robot "
@@ -212,6 +231,41 @@ def _unknown(text: str):
         return PointForceUnknown(X, tuple(d))
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _view_options(p):
+    p.add_argument("--port", type=int, default=8080, metavar="N",
+                   help="the view's port (default 8080)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="the address to serve the view on (default 127.0.0.1, this machine "
+                        "only); another address exposes it to the network")
+
+
+def _open_view(args, robot, title=None, pause=False):
+    from .view import ViewProcess, explore
+    if not 0 < args.port < 65536:
+        raise UsageError(f"tendonsense {args.command}: --port {args.port}: not a port number")
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        print(f"tendonsense: warning: the view is served on {args.host}:{args.port}, visible "
+              f"to other machines on the network", file=sys.stderr)
+    if args.command == "view":
+        viewer = explore(robot, args.port, args.host, args.max_tension, args.max_force)
+    else:
+        viewer = ViewProcess(robot, args.port, args.host, title, pause)
+    print(f"tendonsense: view at http://{args.host}:{args.port}", file=sys.stderr)
+    return viewer
+
+
+def _view(args, robot) -> bool:
+    viewer = _open_view(args, robot)
+    try:
+        while True:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        viewer.close()
+    return True
 
 
 def _positive(text: str) -> float:
@@ -429,6 +483,8 @@ def _estimate(args, robot):
     from .estimation import Noise, estimate
     noise = Noise(args.length_noise, args.tension_noise)
     if args.readings is None:
+        if args.view:
+            raise UsageError("tendonsense estimate: --view goes with --readings")
         if args.output:
             raise UsageError("tendonsense estimate: -o/--output goes with --readings")
         result = estimate(robot, dict(args.displacement), dict(args.tension), args.unknown,
@@ -441,6 +497,9 @@ def _estimate(args, robot):
         raise UsageError("tendonsense estimate: --readings replaces --displacement/--tension")
     if args.output in (None, "-"):
         return _stream(args, robot, noise)
+    if args.view:
+        raise UsageError("tendonsense estimate: --view streams the rows to standard output; "
+                         "leave out -o (or redirect standard output)")
     if args.readings == "-":
         lines = sys.stdin
         try:
@@ -489,17 +548,69 @@ def _stream(args, robot, noise) -> bool:
         print(f"tendonsense: {source}: row {s.row} skipped: {s.error}", file=sys.stderr)
 
     fh = sys.stdin if args.readings == "-" else open(args.readings, newline="")
+    viewer = on_sample = None
+    lines = fh
+    if args.view:
+        replay = args.readings != "-"
+        viewer = _open_view(args, robot, f"{robot.name}: " + (
+            f"replay of {args.readings}" if replay else "live readings"), pause=replay)
+        forces = _point_forces(args)
+
+        def push(s, r):
+            viewer.push(r, tensions=s.tensions, forces=forces, unknowns=args.unknown,
+                        time_s=s.time, note="" if r is not None else s.error)
+
+        on_sample = push
+
+        if replay:
+            lines = _paced(fh, viewer)
     rows = good = 0
     try:
         with fh:
-            rows, good = rd.stream_readings(robot, fh, sys.stdout, args.unknown,
-                                            _point_forces(args), noise, source, skipped)
+            rows, good = rd.stream_readings(robot, lines, sys.stdout, args.unknown,
+                                            _point_forces(args), noise, source, skipped,
+                                            on_sample)
+        if viewer is not None and args.readings != "-":
+            print("tendonsense: the log is done; the view stays until Ctrl-C", file=sys.stderr)
+            while True:
+                time.sleep(0.5)
     except KeyboardInterrupt:
         return True
     except BrokenPipeError:  # the reader went away: stop quietly
         sys.stderr.close()
         return True
+    finally:
+        if viewer is not None:
+            viewer.close()
     return good == rows
+
+
+def _paced(lines, viewer):
+    """The lines of a log file at the pace of its time stamps (column ``time``), held while
+    the view is paused."""
+    rows = csv.reader(lines)
+    header = next(rows, None)
+    if header is None:
+        return
+    yield ",".join(header) + "\n"
+    col = header.index("time") if "time" in header else None
+    start = first = None
+    for raw in rows:
+        while viewer.paused:
+            time.sleep(0.05)
+            start = None  # resume from here
+        try:
+            t = float(raw[col]) if col is not None else None
+        except (ValueError, IndexError):
+            t = None
+        if t is not None:
+            now = time.monotonic()
+            if start is None:
+                start, first = now, t
+            time.sleep(max(0.0, start + (t - first) - now))
+        out = io.StringIO()
+        csv.writer(out).writerow(raw)
+        yield out.getvalue()
 
 
 def _experiments(args) -> bool:
@@ -594,6 +705,8 @@ def main(argv=None) -> int:
         robot = load_robot(args.robot)
         if args.command == "identify":
             return 0 if _identify(args, robot) else _not_converged()
+        if args.command == "view":
+            return 0 if _view(args, robot) else 1
         from . import forward
         if args.command == "estimate":
             return 0 if _estimate(args, robot) else _not_converged()
@@ -609,7 +722,7 @@ def main(argv=None) -> int:
     except UsageError as exc:
         print(exc, file=sys.stderr)
         return 2
-    except (RobotFileError, ValueError, OSError) as exc:
+    except (RobotFileError, ValueError, OSError) as exc:  # a ViewError is an OSError
         print(f"tendonsense: error: {exc}", file=sys.stderr)
         return 1
     return 0 if result.converged else _not_converged()

@@ -151,11 +151,13 @@ def estimate_readings(robot: Robot, measured: Sequence[str], samples: Sequence[S
 
 
 def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point_forces=(),
-                    noise: Noise = Noise(), source="<stdin>", on_skip=None) -> tuple[int, int]:
+                    noise: Noise = Noise(), source="<stdin>", on_skip=None,
+                    on_sample=None) -> tuple[int, int]:
     """Live estimation: read READINGS.csv lines from ``lines`` (an iterable of text lines) and
-    write each output row to ``out`` as soon as it is estimated, flushed. Returns (rows,
-    converged). Ends at the end of the input; the caller handles an interrupt (every row
-    written so far is complete)."""
+    write each output row to ``out`` as soon as it is estimated, flushed; then call
+    ``on_sample(sample, estimate or None)`` (e.g. a :class:`~tendonsense.view.Viewer`'s push).
+    Returns (rows, converged). Ends at the end of the input; the caller handles an interrupt
+    (every row written so far is complete)."""
     from .online import OnlineEstimator
     reader = csv.reader(lines)
     try:
@@ -178,6 +180,8 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
             on_skip(s)
         writer.writerow(output_row(robot, s, r, len(unknowns), with_shape, located(unknowns)))
         out.flush()
+        if on_sample is not None:
+            on_sample(s, r)
         rows, good = rows + 1, good + bool(r is not None and r.converged)
     return rows, good
 

@@ -248,31 +248,18 @@ def parse_robot(data: dict, source: str = "robot", default_name: str = "robot") 
             if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
                 b.fail("rotation", "must be a rotation matrix (orthonormal rows, determinant +1)")
 
-    tendons = []
-    raw = data.get("tendon", [])
-    if not isinstance(raw, list):
-        top.fail("tendon", "must be an array of tables ([[tendon]])")
-    for i, t in enumerate(raw):
-        tendons.append(_parse_tendon(_Reader(t, f"tendon[{i}]", source), rod))
+    tendons = [_parse_tendon(r, rod) for r in _tables(data, "tendon", top)]
     _unique([t.name for t in tendons], "tendon", top)
 
     markers = []
-    raw = data.get("marker", [])
-    if not isinstance(raw, list):
-        top.fail("marker", "must be an array of tables ([[marker]])")
-    for i, m in enumerate(raw):
-        r = _Reader(m, f"marker[{i}]", source)
+    for r in _tables(data, "marker", top):
         r.check_keys(("name", "X", "offset"))
         markers.append(Marker(r.string("name"), r.number("X", low=0.0, high=L),
                               r.vector("offset", 3, default=(0.0, 0.0, 0.0))))
     _unique([m.name for m in markers], "marker", top)
 
     masses = []
-    raw = data.get("mass", [])
-    if not isinstance(raw, list):
-        top.fail("mass", "must be an array of tables ([[mass]])")
-    for i, m in enumerate(raw):
-        r = _Reader(m, f"mass[{i}]", source)
+    for r in _tables(data, "mass", top):
         r.check_keys(("name", "X", "mass", "offset"))
         masses.append(Mass(r.string("name"), r.number("X", low=0.0, high=L),
                            r.number("mass", low=0.0, low_open=True),
@@ -315,6 +302,14 @@ def _parse_elements(r: _Reader, raw, L: float, tendons) -> tuple[float, ...]:
     if any(b <= a for a, b in zip(X, X[1:])):
         r.fail("elements", "element bounds must be strictly increasing")
     return X
+
+
+def _tables(data: dict, key: str, top: _Reader) -> list[_Reader]:
+    """A reader for every table of the array of tables ``[[key]]``."""
+    raw = data.get(key, [])
+    if not isinstance(raw, list):
+        top.fail(key, f"must be an array of tables ([[{key}]])")
+    return [_Reader(t, f"{key}[{i}]", top.source) for i, t in enumerate(raw)]
 
 
 def _unique(names, what, reader):

@@ -1,0 +1,131 @@
+"""The live 3-D view (issue 15): the Python side of one view update, and the CLI stream's row
+round trip with ``--view`` (a headless Chromium watching) against the same stream without it.
+
+    python benchmarks/view.py [--rows 1000]
+
+Needs viser, selenium and Debian's chromium + chromium-driver (as the tests do).
+"""
+
+from __future__ import annotations
+
+import argparse
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+ROBOT = ROOT / "examples" / "paper_prototype.toml"
+sys.path.insert(0, str(ROOT / "tests"))
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def browser(port):
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+    from test_view import FLAGS, PREFS
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = "/usr/bin/chromium"
+    for f in FLAGS + [f"--user-data-dir={tempfile.mkdtemp()}"]:
+        opts.add_argument(f)
+    opts.add_experimental_option("prefs", PREFS)
+    d = webdriver.Chrome(service=Service(executable_path="/usr/bin/chromedriver"), options=opts)
+    d.get(f"http://127.0.0.1:{port}/")
+    time.sleep(3)
+    return d
+
+
+def round_trips(rows, view: bool, watch: bool = True):
+    cmd = [sys.executable, "-m", "tendonsense.cli", "estimate", str(ROBOT), "--readings", "-",
+           "--unknown", "0.25,0,0,-1"]
+    port = free_port()
+    if view:
+        cmd += ["--view", "--port", str(port)]
+    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, bufsize=1, cwd=ROOT)
+    err = []
+    threading.Thread(target=lambda: err.extend(proc.stderr), daemon=True).start()
+    proc.stdin.write("time,tension_t1,displacement_t1\n")
+    proc.stdin.flush()
+    proc.stdout.readline()
+    driver = None
+    if view:
+        while not any("view at" in e for e in err):
+            time.sleep(0.1)
+        driver = browser(port) if watch else None
+    trip = []
+    t_start = time.perf_counter()
+    for k, (T, y) in enumerate(rows):
+        t0 = time.perf_counter()
+        proc.stdin.write(f"{t0 - t_start!r},{T!r},{y!r}\n")
+        proc.stdin.flush()
+        proc.stdout.readline()
+        trip.append(time.perf_counter() - t0)
+        time.sleep(0.005)  # a 200 Hz acquisition loop, so that the view redraws between rows
+    proc.stdin.close()
+    proc.terminate()
+    proc.wait()
+    if driver is not None:
+        driver.quit()
+    return np.array(trip[10:])
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--rows", type=int, default=1000)
+    args = ap.parse_args()
+    from online import smooth_log  # noqa: E402  (benchmarks/online.py)
+    from tendonsense import load_robot
+    from tendonsense.forward import solve
+    from tendonsense.view import Viewer
+
+    robot = load_robot(ROBOT)
+    n = args.rows
+    F, T, Y = smooth_log(robot, n)
+    rows = list(zip(T[:, 0].tolist(), Y["t1"].tolist()))
+
+    # 1. the Python side of one view update: the redraw (drawing thread) and push (caller)
+    viewer = Viewer(robot, free_port())
+    results = [solve(robot, {"t1": float(T[k, 0])}, [(0.25, (0, 0, -float(F[k])))])
+               for k in range(0, n, max(n // 50, 1))]
+    draw, push = [], []
+    for k in range(400):
+        r = results[k % len(results)]
+        t0 = time.perf_counter()
+        viewer.push(r, forces=[(0.25, (0, 0, -1.0))])
+        push.append(time.perf_counter() - t0)
+        shown = viewer._shown(r, None, [(0.25, (0, 0, -1.0))], (), None, "", time.monotonic())
+        t0 = time.perf_counter()
+        viewer.draw(*shown)
+        draw.append(time.perf_counter() - t0)
+    viewer.close()
+    draw, push = np.array(draw[20:]) * 1e3, np.array(push[20:]) * 1e3
+    print(f"view update (redraw, Python side): p50 {np.median(draw):.2f} ms, "
+          f"p99 {np.percentile(draw, 99):.2f} ms; push (on the estimator's path): "
+          f"p99 {np.percentile(push, 99) * 1e3:.0f} µs")
+
+    # 2. the stream's row round trip with and without the view, alternated
+    modes = {"without --view": (False, False), "with --view, no browser": (True, False),
+             "with --view and a headless Chromium watching": (True, True)}
+    out = {m: [] for m in modes}
+    for _ in range(2):
+        for m, (view, watch) in modes.items():
+            out[m].append(round_trips(rows, view, watch))
+    for m in modes:
+        trip = np.concatenate(out[m]) * 1e3
+        print(f"CLI stream row round trip, {m}: p50 {np.median(trip):.2f} ms, "
+              f"p99 {np.percentile(trip, 99):.2f} ms")
+
+
+if __name__ == "__main__":
+    main()
