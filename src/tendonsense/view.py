@@ -101,8 +101,9 @@ class Viewer:
             port = s.getsockname()[1]  # port 0: any free one
         with contextlib.redirect_stdout(sys.stderr):  # stdout may carry a CSV stream
             self.server = viser.ViserServer(host=host, port=port, verbose=False)
-        if self.server.get_port() != port:
-            self.close()
+        if self.server.get_port() != port:  # taken between the check and the start
+            with contextlib.redirect_stdout(sys.stderr):
+                self.server.stop()
             raise ViewError(f"cannot serve the view on {host}:{port}: the port is taken")
         self.robot, self.model = robot, model_for(robot)
         self.port, self.host = port, host
