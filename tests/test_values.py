@@ -2,11 +2,12 @@
 X, batched solves and exact derivatives with respect to the values."""
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tendonsense import estimation, statics
+from tendonsense import compiled, estimation, load_robot, statics
 from tendonsense.estimation import PointForceUnknown, estimate
 from tendonsense.forward import model_for, solution_derivatives, solve
 from tendonsense.tracking import solve_batch
@@ -59,6 +60,36 @@ def test_no_new_programs_for_new_values_or_load_positions(prototype, monkeypatch
         run(prototype, float(X))
     assert len(calls) == before
     assert model_for(variant(prototype, rng)).structure == model_for(prototype).structure
+
+
+class _Stop(Exception):
+    pass
+
+
+EXAMPLES = sorted((Path(__file__).resolve().parents[1] / "examples").glob("*.toml"))
+
+
+@pytest.mark.parametrize("path", EXAMPLES, ids=[p.stem for p in EXAMPLES])
+def test_every_example_keeps_its_solver_on_disk(path, tmp_path, monkeypatch):
+    """The solver of every example robot (and of the elements basis) is serialised into the
+    cache: one that is not would be traced and compiled again in every new process."""
+    monkeypatch.setenv("TENDONSENSE_CACHE_DIR", str(tmp_path))
+    kept = []
+
+    def load_only(program, *args):  # export and write, without compiling
+        kept.append(program._load(compiled._signature(args), args) is not program.jitted)
+        raise _Stop
+
+    monkeypatch.setattr(compiled.Program, "__call__", load_only)
+    robot = load_robot(path)
+    L = robot.rod.length
+    for r in (robot, robot.replace(elements=(L / 3, 2 * L / 3))):
+        statics.newton_solver.cache_clear()
+        with pytest.raises(_Stop):
+            solve(r, {robot.tendon_names[0]: 1.0})
+    statics.newton_solver.cache_clear()
+    assert kept == [True, True]
+    assert len(list((tmp_path / "programs").glob("newton-*.bin"))) == 2
 
 
 def test_variant_matches_a_freshly_built_model(prototype):

@@ -39,19 +39,21 @@ def _source_hash() -> str:
 
 @lru_cache(maxsize=1)
 def _register() -> bool:
-    """Register the project's named tuples for serialisation; False if it is unavailable."""
+    """Register every named tuple of the modules whose values programs take or return, for
+    serialisation; False if serialisation is unavailable."""
     try:
         import flatbuffers  # noqa: F401  (jax.export serialisation needs it)
     except ImportError:
         return False
     from . import kinematics, model, statics, tracking
-    for mod, names in ((model, ("Values", "PointSet", "TendonGroup")),
-                       (statics, ("Drive", "Unknowns", "NewtonResult", "Scaling")),
-                       (kinematics, ("Frames",)), (tracking, ("Carry", "Track"))):
-        for name in names:
+    for mod in (kinematics, model, statics, tracking):
+        for name, cls in vars(mod).items():
+            if not (isinstance(cls, type) and issubclass(cls, tuple) and hasattr(cls, "_fields")
+                    and cls.__module__ == mod.__name__):
+                continue
             try:
                 jax.export.register_namedtuple_serialization(
-                    getattr(mod, name), serialized_name=f"tendonsense.{name}")
+                    cls, serialized_name=f"tendonsense.{name}")
             except ValueError:  # already registered
                 pass
     return True

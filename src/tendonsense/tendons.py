@@ -68,14 +68,31 @@ def _continuous_B_jvp(primals, tangents):
 
 
 def _rate(w, dw, omega):
-    """|t′| of the path (unit tangent t = R ŵ): ``|ω × ŵ + ŵ′|``, ``ŵ′ = (I − ŵŵᵀ) w′ / |w|``."""
-    size = jnp.sqrt(w @ w)
-    u = w / size
-    return _norm(jnp.cross(omega, u) + (dw - u * (u @ dw)) / size)
+    """|t′| of the path (unit tangent t = R ŵ), ``|ω × ŵ + ŵ′|`` with ``ŵ′ = (I − ŵŵᵀ) w′ / |w|``,
+    and its gradients in w, w′ and ω (last axis 3; zero where the path does not turn)."""
+    s = jnp.sqrt(_dot(w, w))[..., None]
+    u = w / s
+    along = _dot(u, dw)[..., None]
+    across = dw - u * along  # (I − ŵŵᵀ) w′
+    v = jnp.cross(omega, u) + across / s
+    rate = _norm(v)
+    n = v / jnp.where(rate > 0, rate, 1.0)[..., None]
+    c = jnp.cross(n, omega) - (along * n + _dot(n, u)[..., None] * dw) / s
+    g_w = (c - u * _dot(u, c)[..., None] - _dot(n, across)[..., None] * u / s) / s
+    g_dw = (n - u * _dot(u, n)[..., None]) / s
+    return rate, g_w, g_dw, jnp.cross(u, n)
 
 
 def _unit_angle(a, b):
-    return _angle(a / jnp.sqrt(a @ a), b / jnp.sqrt(b @ b))
+    """The angle between a and b (any length, last axis 3) and its gradients in a and b (zero
+    at a straight pass, as :func:`_angle`)."""
+    la, lb = jnp.sqrt(_dot(a, a))[..., None], jnp.sqrt(_dot(b, b))[..., None]
+    ua, ub = a / la, b / lb
+    normal = jnp.cross(ua, ub)  # exactly 0 for equal directions
+    to_b, to_a = jnp.cross(normal, ua), jnp.cross(ub, normal)  # ⊥ a toward b, ⊥ b toward a
+    sin = _norm(normal)[..., None]
+    sin = jnp.where(sin > 0, sin, jnp.inf)
+    return _angle(ua, ub), -to_b / (la * sin), -to_a / (lb * sin)
 
 
 def _continuous(q, mu, ct, h):
@@ -85,30 +102,26 @@ def _continuous(q, mu, ct, h):
     w = ct.A @ q + ct.c  # (k, n_int, m, 3)
     size = jnp.sqrt(jnp.sum(w * w, axis=-1, keepdims=True))  # ≈ 1 + ε: never 0
     unit = w / size
-    dw = ct.dA @ q
-    omega = jnp.broadcast_to(ct.Omega @ q, w.shape)
-    local = jax.vmap(jax.vmap(jax.vmap(jax.value_and_grad(_rate, argnums=(0, 1, 2)))))
-    rate, (g_w, g_dw, g_om) = local(w, dw, omega)  # (k, n_int, m), (k, n_int, m, 3) each
+    rate, g_w, g_dw, g_om = _rate(w, ct.dA @ q, ct.Omega @ q)  # (k, n_int, m), (…, 3) each
     d_rate = (jnp.einsum("kima,kimaq->kimq", g_w, ct.A)
               + jnp.einsum("kima,kimaq->kimq", g_dw, ct.dA)
               + jnp.einsum("kima,imaq->kimq", g_om, ct.Omega))
     ends = ct.A_ends @ q + ct.c_ends  # (k, n_int, 2, 3)
-    x_axis = jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0]), ends[:, 0, 0].shape)
-    entry, g_entry = jax.vmap(jax.value_and_grad(_unit_angle, argnums=1))(x_axis, ends[:, 0, 0])
-    d_entry = jnp.einsum("ka,kaq->kq", g_entry, ct.A_ends[:, 0, 0])  # from the actuator
-    kink_fn = jax.vmap(jax.vmap(jax.value_and_grad(_unit_angle, argnums=(0, 1))))
-    kinks, (g_a, g_b) = kink_fn(ends[:, :-1, 1], ends[:, 1:, 0])  # where elements meet
-    d_kinks = (jnp.einsum("kia,kiaq->kiq", g_a, ct.A_ends[:, :-1, 1])
-               + jnp.einsum("kia,kiaq->kiq", g_b, ct.A_ends[:, 1:, 0]))
-    k = w.shape[0]
+    # the entry from the actuator (along x) at [:, 0, 0], the kinks where intervals meet
+    first = jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0]), ends[:, :1, 1].shape)
+    angles, g_before, g_after = _unit_angle(
+        jnp.concatenate([first, ends[:, :-1, 1]], 1), ends[:, :, 0])
+    g_ends = jnp.stack([g_after, jnp.concatenate([g_before[:, 1:], 0 * first], 1)], 2)
+    d_ends = jnp.einsum("kija,kijaq->kijq", g_ends, ct.A_ends)
+    d_angles = d_ends[:, :, 0] + jnp.concatenate([0 * d_ends[:, :1, 1], d_ends[:, :-1, 1]], 1)
     per_interval = jnp.sum(ct.weights * rate, axis=-1)
     d_per_interval = jnp.einsum("im,kimq->kiq", ct.weights, d_rate)
-    steps = jnp.concatenate([jnp.zeros((k, 1)), jnp.cumsum(per_interval[:, :-1] + kinks, 1)], 1)
-    d_steps = jnp.concatenate([jnp.zeros((k, 1, q.shape[0])),
-                               jnp.cumsum(d_per_interval[:, :-1] + d_kinks, 1)], 1)
-    theta = (entry[:, None] + steps)[..., None] + h[:, None] * (rate @ ct.cumulative.T)
-    d_theta = ((d_entry[:, None] + d_steps)[:, :, None]
-               + h[:, None, None] * jnp.einsum("mj,kijq->kimq", ct.cumulative, d_rate))
+    before = jnp.concatenate([0 * per_interval[:, :1], per_interval[:, :-1]], 1)
+    d_before = jnp.concatenate([0 * d_per_interval[:, :1], d_per_interval[:, :-1]], 1)
+    steps, d_steps = jnp.cumsum(angles + before, 1), jnp.cumsum(d_angles + d_before, 1)
+    theta = steps[..., None] + h[:, None] * (rate @ ct.cumulative.T)
+    d_theta = d_steps[:, :, None] + h[:, None, None] * jnp.einsum("mj,kijq->kimq",
+                                                                   ct.cumulative, d_rate)
     fade = ct.weights * jnp.exp(-mu[:, None, None] * theta)  # (k, n_int, m), with the weights
     pull = jnp.einsum("kima,kimaq->kimq", unit, ct.A)  # ∂|w|/∂q
     B = -jnp.einsum("kim,kimq->kq", fade, pull)
@@ -157,6 +170,10 @@ def _angle(a, b):
     """Angle between unit vectors (last axis), ``2 atan2(|a − b|, |a + b|)``; its derivative at a
     straight pass (angle 0, where the Capstan law has a kink) is taken as 0."""
     return 2.0 * jnp.arctan2(_norm(a - b), _norm(a + b))
+
+
+def _dot(a, b):
+    return jnp.sum(a * b, axis=-1)
 
 
 def _norm(x):
