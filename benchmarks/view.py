@@ -1,7 +1,9 @@
 """The live 3-D view (issue 15): the Python side of one view update, and the CLI stream's row
-round trip with ``--view`` (a headless Chromium watching) against the same stream without it.
+round trip with ``--view`` against the same stream without it: nobody watching, a client that
+draws elsewhere, and a headless Chromium on this machine (software WebGL: each frame costs it
+tens of ms of CPU, on the same 2 cores).
 
-    python benchmarks/view.py [--rows 1000]
+    python benchmarks/view.py [--rows 1000] [--runs 4]
 
 Needs viser, selenium and Debian's chromium + chromium-driver (as the tests do).
 """
@@ -45,7 +47,36 @@ def browser(port):
     return d
 
 
-def round_trips(rows, view: bool, watch: bool = True):
+class Socket:
+    """A client that takes every message of the view and draws nothing: a browser on another
+    machine, as seen from this one."""
+
+    def __init__(self, port):
+        import viser
+        from websockets.sync.client import connect
+        import msgspec
+        from viser._messages import ViewerCameraMessage
+        self.ws = connect(f"ws://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"],
+                          max_size=None)
+        # viser counts a client from its first camera pose (as a browser sends it)
+        camera = ViewerCameraMessage((1.0, 0, 0, 0), (0.5, 0.5, 0.5), 1.0, 1e-3, 10.0, 800, 1280,
+                                     (0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+        self.ws.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
+        self.bytes = 0
+        threading.Thread(target=self._drain, daemon=True).start()
+
+    def _drain(self):
+        try:
+            for msg in self.ws:
+                self.bytes += len(msg)
+        except Exception:
+            pass
+
+    def quit(self):
+        self.ws.close()
+
+
+def round_trips(rows, view: bool, watch: str | None = "chromium"):
     cmd = [sys.executable, "-m", "tendonsense.cli", "estimate", str(ROBOT), "--readings", "-",
            "--unknown", "0.25,0,0,-1"]
     port = free_port()
@@ -62,7 +93,7 @@ def round_trips(rows, view: bool, watch: bool = True):
     if view:
         while not any("view at" in e for e in err):
             time.sleep(0.1)
-        driver = browser(port) if watch else None
+        driver = {"chromium": browser, "socket": Socket, None: lambda _: None}[watch](port)
     trip = []
     t_start = time.perf_counter()
     for k, (T, y) in enumerate(rows):
@@ -83,11 +114,12 @@ def round_trips(rows, view: bool, watch: bool = True):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--rows", type=int, default=1000)
+    ap.add_argument("--runs", type=int, default=4, help="runs of each mode, alternated")
     args = ap.parse_args()
     from online import smooth_log  # noqa: E402  (benchmarks/online.py)
     from tendonsense import load_robot
     from tendonsense.forward import solve
-    from tendonsense.view import Viewer
+    from tendonsense.view import Viewer, ViewProcess
 
     robot = load_robot(ROBOT)
     n = args.rows
@@ -98,33 +130,44 @@ def main():
     viewer = Viewer(robot, free_port())
     results = [solve(robot, {"t1": float(T[k, 0])}, [(0.25, (0, 0, -float(F[k])))])
                for k in range(0, n, max(n // 50, 1))]
-    draw, push = [], []
+    draw = []
     for k in range(400):
         r = results[k % len(results)]
-        t0 = time.perf_counter()
-        viewer.push(r, forces=[(0.25, (0, 0, -1.0))])
-        push.append(time.perf_counter() - t0)
         shown = viewer._shown(r, None, [(0.25, (0, 0, -1.0))], (), None, "", time.monotonic())
         t0 = time.perf_counter()
         viewer.draw(*shown)
         draw.append(time.perf_counter() - t0)
     viewer.close()
-    draw, push = np.array(draw[20:]) * 1e3, np.array(push[20:]) * 1e3
+    process, push = ViewProcess(robot, free_port()), []  # as estimate --view pushes
+    for k in range(400):
+        t0 = time.perf_counter()
+        process.push(results[k % len(results)], forces=[(0.25, (0, 0, -1.0))])
+        push.append(time.perf_counter() - t0)
+        time.sleep(0.005)
+    process.close()
+    draw, push = np.array(draw[20:]) * 1e3, np.array(push[20:]) * 1e6
     print(f"view update (redraw, Python side): p50 {np.median(draw):.2f} ms, "
-          f"p99 {np.percentile(draw, 99):.2f} ms; push (on the estimator's path): "
-          f"p99 {np.percentile(push, 99) * 1e3:.0f} µs")
+          f"p99 {np.percentile(draw, 99):.2f} ms; push at 200 Hz (on the estimator's path): "
+          f"p50 {np.median(push):.0f} µs, p99 {np.percentile(push, 99):.0f} µs")
 
     # 2. the stream's row round trip with and without the view, alternated
-    modes = {"without --view": (False, False), "with --view, no browser": (True, False),
-             "with --view and a headless Chromium watching": (True, True)}
+    modes = {"without --view": (False, None), "with --view, nobody watching": (True, None),
+             "with --view, a client elsewhere (a socket that draws nothing)": (True, "socket"),
+             "with --view and a headless Chromium on this machine": (True, "chromium")}
     out = {m: [] for m in modes}
-    for _ in range(2):
-        for m, (view, watch) in modes.items():
-            out[m].append(round_trips(rows, view, watch))
+    names = list(modes)
+    for k in range(args.runs):  # each mode first in turn
+        for m in names[k % len(names):] + names[:k % len(names)]:
+            out[m].append(round_trips(rows, *modes[m]) * 1e3)
+    # the machine's pace drifts between runs: each run's p99 against the run without the view
+    # made in the same round, the median of those ratios
+    base = [np.percentile(t, 99) for t in out[names[0]]]
     for m in modes:
-        trip = np.concatenate(out[m]) * 1e3
+        trip, p99 = np.concatenate(out[m]), [np.percentile(t, 99) for t in out[m]]
         print(f"CLI stream row round trip, {m}: p50 {np.median(trip):.2f} ms, "
-              f"p99 {np.percentile(trip, 99):.2f} ms")
+              f"p99 {np.percentile(trip, 99):.2f} ms; p99 / the same round's without --view: "
+              f"median {np.median(np.divide(p99, base)):.2f} "
+              f"({', '.join(f'{r:.2f}' for r in np.divide(p99, base))})")
 
 
 if __name__ == "__main__":

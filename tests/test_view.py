@@ -217,7 +217,12 @@ def test_estimate_view_follows_a_live_stream(driver):
         p.stdin.write("0.2,-1.0,-0.006\n")  # a tendon cannot push: refused, and shown so
         p.stdin.flush()
         wait_for(lambda: "SAMPLE REFUSED" in text(driver) and "negative" in text(driver))
-        assert out[0].startswith("row,time,magnitude_1") and "skipped" in out[-1]
+        p.stdin.write("0.3,2.0,-0.004\n")  # the next one is drawn, the refusal still marked
+        p.stdin.flush()
+        wait_for(lambda: "t1 2.000 N" in text(driver))
+        assert re.search(r"s ago a sample was refused or did not converge: .*negative",
+                         text(driver))
+        assert out[0].startswith("row,time,magnitude_1") and "skipped" in out[-2]
         only_this_machine(driver, port)
     finally:
         p.stdin.close()

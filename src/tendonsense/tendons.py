@@ -9,6 +9,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.custom_derivatives import SymbolicZero
 
 from .kinematics import force_cotangent, poses
 from .model import Structure, TendonGroup, Values
@@ -59,12 +60,19 @@ def _continuous_B(q, mu, ct, h):
     return _continuous(q, mu, ct, h)[0]
 
 
-@_continuous_B.defjvp
 def _continuous_B_jvp(primals, tangents):
     q, mu, ct, h = primals
     dq, dmu = tangents[:2]
     B, J_q, J_mu = _continuous(q, mu, ct, h)
-    return B, J_q @ dq + J_mu * dmu[:, None]
+    dB = jnp.zeros_like(B)  # a solve moves q alone: ∂B/∂μ is not even computed
+    if not isinstance(dq, SymbolicZero):
+        dB = dB + J_q @ dq
+    if not isinstance(dmu, SymbolicZero):
+        dB = dB + J_mu * dmu[:, None]
+    return B, dB
+
+
+_continuous_B.defjvp(_continuous_B_jvp, symbolic_zeros=True)
 
 
 def _rate(w, dw, omega):

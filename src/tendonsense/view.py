@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import socket
 import sys
 import threading
@@ -37,6 +38,7 @@ HISTORY = 10.0
 
 #: points drawn along a located force's 1-σ band
 BAND_POINTS = 25
+ALERT = 3.0  # s a refused or non-converged sample stays marked
 
 BACKBONE = (230, 110, 0)
 DISKS = (60, 90, 200)
@@ -117,12 +119,15 @@ class Viewer:
         self._drawing = threading.Lock()
         self._latest: tuple | None = None  # the newest push, not drawn yet
         self._last: tuple | None = None  # (Shown, tip) drawn last
+        self._alert: tuple | None = None  # (reason, time) of the last refused sample
+        self._connected = False  # a browser connected since the last redraw
         self._cond = threading.Condition()
         self._period = 1.0 / rate
         self._stop = False
         self.draws = 0
         self._thread = threading.Thread(target=self._loop, name="tendonsense-view", daemon=True)
         self._thread.start()
+        self.server.on_client_connect(self._show_last)
 
     # ------------------------------------------------------------------ scene
     def _setup_scene(self, title):
@@ -173,6 +178,8 @@ class Viewer:
         ``note`` marks a refused sample (``result`` None) with its reason."""
         now = time.monotonic()
         self.samples.append(now)
+        if result is None or not bool(result.converged):  # marked for a while, even if a
+            self._alert = (_reason(result, note), now)  # newer sample is drawn first
         with self._cond:  # turned into a scene by the drawing thread
             self._latest = (result, tensions, forces, unknowns, time_s, note, now)
             self._cond.notify()
@@ -223,9 +230,7 @@ class Viewer:
         tip = None
         if getattr(result, "backbone", None) is not None:
             tip = np.asarray(result.backbone)[-1]
-        why = note or getattr(result, "note", "") or (getattr(result, "extra", {}) or {}).get(
-            "note", "")
-        status = "converged" if converged else f"⚠ NOT CONVERGED: {why}"
+        status = "converged" if converged else f"⚠ NOT CONVERGED: {_reason(result, note)}"
         disp = getattr(result, "displacements", None)
         rows = [f"**{status}**", *lines]
         if disp:
@@ -239,22 +244,35 @@ class Viewer:
     def _loop(self):
         while True:
             with self._cond:
-                while (self._latest is None or self.paused) and not self._stop:
+                while ((self._latest is None and not self._connected) or self.paused
+                       ) and not self._stop:
                     self._cond.wait(0.25)
                 if self._stop:
                     return
-                latest, self._latest = self._latest, None
+                latest, self._latest, self._connected = self._latest, None, False
             start = time.monotonic()
             try:
+                if latest is None:  # a browser connected: the newest scene, not drawn yet
+                    if self._last is not None:
+                        self.draw(*self._last)
+                    continue
                 shown = self._shown(*latest)
                 if shown is None and self._last is not None:  # the last shape, refused
                     shown = _refused(self._last, latest[5], latest[4] or latest[6])
                 if shown is not None:
                     self._last = shown
-                    self.draw(*shown)
+                    if self.server.get_clients():
+                        self.draw(*shown)
+                    else:  # nobody watching: only the time plot's history
+                        self._record(shown[0].plot)
             except Exception as exc:  # the view must never take the estimator down
                 print(f"tendonsense view: redraw failed: {exc}", file=sys.stderr)
             time.sleep(max(0.0, self._period - (time.monotonic() - start)))
+
+    def _show_last(self, _client):
+        with self._cond:
+            self._connected = True
+            self._cond.notify()
 
     def draw(self, shown: Shown, tip=None) -> None:
         """Redraw the scene for ``shown`` (the drawing thread's work; public for timing)."""
@@ -295,8 +313,14 @@ class Viewer:
             if tip is None:
                 tip = backbone[-1]
             rate = self._rate()
+            alert = ""
+            if self._alert is not None and shown.ok:
+                why, at = self._alert
+                if time.monotonic() - at < ALERT:
+                    alert = (f"  \n⚠ {time.monotonic() - at:.1f} s ago a sample was refused or "
+                             f"did not converge: {why}")
             self.text.content = (shown.text + f"  \ntip: {tip[0] * 1e3:.1f}, {tip[1] * 1e3:.1f}, "
-                                 f"{tip[2] * 1e3:.1f} mm  \n{rate:.1f} samples/s")
+                                 f"{tip[2] * 1e3:.1f} mm  \n{rate:.1f} samples/s{alert}")
             if shown.plot:
                 self._draw_plot(shown.plot)
         self.draws += 1
@@ -333,11 +357,15 @@ class Viewer:
                     f"/bands/{k}", points=pts, color=BAND, thickness=14.0,
                     thickness_units="screen"))
 
-    def _draw_plot(self, sample):
-        t = sample["t"]
+    def _record(self, sample):
+        if not sample or (self.history and self.history[-1] is sample):
+            return
         self.history.append(sample)
-        while self.history and t - self.history[0]["t"] > HISTORY:
+        while self.history and sample["t"] - self.history[0]["t"] > HISTORY:
             self.history.popleft()
+
+    def _draw_plot(self, sample):
+        self._record(sample)
         keys = tuple(k for k in sample if k != "t")
         t0 = self.history[-1]["t"]
         data = (np.array([h["t"] - t0 for h in self.history]),
@@ -378,6 +406,12 @@ class Viewer:
         self._thread.join(timeout=2)
         with contextlib.redirect_stdout(sys.stderr):
             self.server.stop()
+
+
+def _reason(result, note):
+    """Why a sample was refused or did not converge."""
+    return note or getattr(result, "note", "") or (getattr(result, "extra", {}) or {}).get(
+        "note", "")
 
 
 def _refused(last, note, t):
@@ -446,9 +480,11 @@ def explore(robot: Robot, port: int = 8080, host: str = "127.0.0.1", max_tension
 
 
 class ViewProcess:
-    """A :class:`Viewer` in a process of its own (``estimate --view``): :meth:`push` costs
-    one pickled message through a pipe, and the redraws never hold this process's
-    interpreter, so that an estimator beside it keeps its pace."""
+    """A :class:`Viewer` in a process of its own (``estimate --view``), so that the redraws
+    never hold this process's interpreter and an estimator beside it keeps its pace.
+    :meth:`push` only keeps the sample: a thread sends the newest one at the view's rate
+    (a refused or non-converged one at once), so that a fast stream does not pickle every
+    row."""
 
     def __init__(self, robot: Robot, port: int = 8080, host: str = "127.0.0.1",
                  title: str | None = None, pause: bool = False):
@@ -464,10 +500,39 @@ class ViewProcess:
             self._proc.join(timeout=5)
             raise ViewError(value)
         self.port, self._paused = value, False
+        self._cond, self._sending = threading.Condition(), threading.Lock()
+        self._pending, self._count, self._closed = None, 0, False
+        self._sender = threading.Thread(target=self._send_newest, name="tendonsense-view-send",
+                                        daemon=True)
+        self._sender.start()
 
     def push(self, result, **kwargs) -> None:
         """As :meth:`Viewer.push`; returns at once."""
-        self._conn.send((result, kwargs))
+        with self._cond:
+            self._count += 1
+            if result is not None and bool(result.converged):
+                self._pending = (result, kwargs)
+                self._cond.notify()
+                return
+            msg, self._pending, self._count = (result, kwargs, self._count), None, 0
+        self._send(msg)
+
+    def _send_newest(self):
+        while True:
+            with self._cond:
+                while self._pending is None and not self._closed:
+                    self._cond.wait()
+                if self._pending is None:
+                    return
+                msg = (*self._pending, self._count)
+                self._pending, self._count = None, 0
+            self._send(msg)
+            time.sleep(1.0 / RATE)
+
+    def _send(self, msg):
+        with self._sending:
+            with contextlib.suppress(OSError):  # the view went away: the estimates go on
+                self._conn.send(msg)
 
     @property
     def paused(self) -> bool:
@@ -477,18 +542,23 @@ class ViewProcess:
         return self._paused
 
     def close(self):
-        try:
-            self._conn.send(None)
-        except OSError:
-            pass
+        """Send the newest sample, then stop the view process."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify()
+        self._sender.join(timeout=5)
+        self._send(None)
         self._proc.join(timeout=5)
         if self._proc.is_alive():
             self._proc.terminate()
 
 
 def _serve(robot, port, host, title, pause, conn):
-    """The view process: push what arrives, the newest drawn at the viewer's rate."""
+    """The view process: push what arrives, the newest drawn at the viewer's rate; at a lower
+    priority than the estimator, so that on a busy machine its redraws wait, not the rows."""
     sys.stdout = sys.stderr  # the parent's standard output may carry a CSV stream
+    with contextlib.suppress(OSError, AttributeError):
+        os.nice(10)
     try:
         viewer = Viewer(robot, port, host, title=title)
     except ViewError as exc:
@@ -500,7 +570,9 @@ def _serve(robot, port, host, title, pause, conn):
     conn.send(("ready", viewer.port))
     try:
         while (msg := conn.recv()) is not None:
-            viewer.push(msg[0], **msg[1])
+            result, kwargs, count = msg
+            viewer.samples.extend([time.monotonic()] * (count - 1))  # sent as one
+            viewer.push(result, **kwargs)
     except (EOFError, OSError):  # the parent went away
         pass
     viewer.close()
