@@ -549,12 +549,11 @@ def _stream(args, robot, noise) -> bool:
 
     fh = sys.stdin if args.readings == "-" else open(args.readings, newline="")
     viewer = on_sample = None
-    lines = fh
+    lines, forces = fh, _point_forces(args)
     if args.view:
         replay = args.readings != "-"
         viewer = _open_view(args, robot, f"{robot.name}: " + (
             f"replay of {args.readings}" if replay else "live readings"), pause=replay)
-        forces = _point_forces(args)
 
         def push(s, r):
             viewer.push(r, tensions=s.tensions, forces=forces, unknowns=args.unknown,
@@ -567,9 +566,8 @@ def _stream(args, robot, noise) -> bool:
     rows = good = 0
     try:
         with fh:
-            rows, good = rd.stream_readings(robot, lines, sys.stdout, args.unknown,
-                                            _point_forces(args), noise, source, skipped,
-                                            on_sample)
+            rows, good = rd.stream_readings(robot, lines, sys.stdout, args.unknown, forces,
+                                            noise, source, skipped, on_sample)
         if viewer is not None and args.readings != "-":
             print("tendonsense: the log is done; the view stays until Ctrl-C", file=sys.stderr)
             while True:
