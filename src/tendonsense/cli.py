@@ -256,7 +256,8 @@ def _open_view(args, robot, title=None, pause=False):
     return viewer
 
 
-def _view(args, robot) -> bool:
+def _view(args, robot):
+    """Serve until Ctrl-C."""
     viewer = _open_view(args, robot)
     try:
         while True:
@@ -265,7 +266,6 @@ def _view(args, robot) -> bool:
         pass
     finally:
         viewer.close()
-    return True
 
 
 def _positive(text: str) -> float:
@@ -704,7 +704,8 @@ def main(argv=None) -> int:
         if args.command == "identify":
             return 0 if _identify(args, robot) else _not_converged()
         if args.command == "view":
-            return 0 if _view(args, robot) else 1
+            _view(args, robot)
+            return 0
         from . import forward
         if args.command == "estimate":
             return 0 if _estimate(args, robot) else _not_converged()

@@ -13,10 +13,11 @@ _SMALL = 1e-2  # theta^2 below which the Taylor series are used (theta < 0.1)
 
 
 def skew(w):
-    """3-vector -> 3x3 skew-symmetric matrix, ``skew(a) @ b == cross(a, b)``."""
-    z = jnp.zeros_like(w[0])
-    return jnp.stack([jnp.stack([z, -w[2], w[1]]), jnp.stack([w[2], z, -w[0]]),
-                      jnp.stack([-w[1], w[0], z])])
+    """3-vectors (..., 3) -> skew-symmetric matrices (..., 3, 3), ``skew(a) @ b == a × b``."""
+    x, y, z = w[..., 0], w[..., 1], w[..., 2]
+    o = jnp.zeros_like(x)
+    return jnp.stack([jnp.stack([o, -z, y], -1), jnp.stack([z, o, -x], -1),
+                      jnp.stack([-y, x, o], -1)], -2)
 
 
 def hat(xi):

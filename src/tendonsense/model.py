@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .basis import ElementsBasis, LegendreBasis
+from .lie import skew
 from .robot import Numerics, Robot
 
 _Z = np.sqrt(3.0) / 6.0  # Zannah / two-point Gauss abscissae at 1/2 -+ sqrt(3)/6
@@ -272,10 +273,10 @@ def _continuous(robot: Robot, basis, nodes: np.ndarray, index) -> ContinuousTend
         for Xs, P, out_A, out_c in ((X, Phi, A, c), (np.stack([nodes[:-1], nodes[1:]], 1),
                                                      Phi_ends, A_ends, c_ends)):
             d = t.offset(Xs.ravel(), L).reshape(Xs.shape + (3,))
-            out_A.append(P[..., 3:, :] - _skew(d) @ P[..., :3, :])  # ν + ω × d
+            out_A.append(P[..., 3:, :] - skew(d) @ P[..., :3, :])  # ν + ω × d
             out_c.append(np.broadcast_to(np.r_[1.0, 0.0, 0.0] + slope, Xs.shape + (3,)))
         d = t.offset(X.ravel(), L).reshape(n_int, m, 3)
-        dA.append(dPhi[..., 3:, :] - _skew(d) @ dPhi[..., :3, :] - _skew(slope) @ Phi[..., :3, :])
+        dA.append(dPhi[..., 3:, :] - skew(d) @ dPhi[..., :3, :] - skew(slope) @ Phi[..., :3, :])
     weights = 0.5 * h[:, None] * wg
     # cumulative integration of the interpolant through the m points, on [0, 1]
     V_inv = np.linalg.inv(np.polynomial.legendre.legvander(xg, m - 1))
@@ -285,15 +286,6 @@ def _continuous(robot: Robot, basis, nodes: np.ndarray, index) -> ContinuousTend
     return ContinuousTendons(np.array(A), c, np.array(dA), np.array(A_ends), np.array(c_ends),
                              Phi[..., :3, :], weights, cumulative,
                              np.einsum("im,kim->k", weights, np.linalg.norm(c, axis=-1)))
-
-
-def _skew(v):
-    """Skew matrices of vectors (..., 3) → (..., 3, 3), ``_skew(a) @ b = a × b``."""
-    v = np.asarray(v, float)
-    z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
-                     np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
 
 
 def _grid(L: float, uniform: np.ndarray, special: np.ndarray) -> np.ndarray:

@@ -344,9 +344,10 @@ def _parse_rod(r: _Reader) -> Rod:
     if any(rr <= 0 for _, rr in knots):
         r.fail("radius", "every radius must be > 0")
     disk_radius = r.number("disk_radius", low=0.0, low_open=True) if r.has("disk_radius") else None
-    if disk_radius is not None and disk_radius < max(rr for _, rr in knots):
+    widest = max(rr for _, rr in knots)
+    if disk_radius is not None and disk_radius < widest:
         r.fail("disk_radius", f"spacer disks ({disk_radius:g} m) must be at least as wide as "
-                              f"the rod ({max(rr for _, rr in knots):g} m)")
+                              f"the rod ({widest:g} m)")
     return Rod(L, tuple(knots), r.number("young_modulus", low=0.0, low_open=True),
                r.number("poisson_ratio", low=-1.0, high=0.5, low_open=True),
                r.number("density", low=0.0), disk_radius)
