@@ -56,16 +56,14 @@ def test_pulled_back_tendon_forces_are_body_jacobian_products(prototype):
     model = model_for(prototype)
     q = random_q(model, 5, scale=1.0)
     grid = frames(model, q)
-    unit = tendons.unit_cotangents(model.structure, model.values, grid.g, jnp.full(3, 0.4))
-    # a cotangent [[f dᵀ, f], [0, 0]] holds the global force f in its last column
-    R = np.asarray(grid.g[:, :3, :3])
-    f_loc = np.einsum("nji,knj->kni", R, np.asarray(unit[:, :, :3, 3]))
+    unit = np.asarray(tendons.unit_wrenches(model.structure, model.values, grid.g,
+                                            jnp.full(3, 0.4)))
     B = np.zeros((model.nq, 3))
     for grp, index in zip(model.values.tendons, model.structure.groups):
         for k, j in enumerate(index):
             for node, d in zip(grp.nodes[k], grp.offsets[k]):
-                W = np.r_[np.cross(d, f_loc[j, node]), f_loc[j, node]]
-                B[:, j] += np.asarray(grid.J[node]).T @ W
+                f = unit[j, node, 3:]  # the body-frame force; its moment from the offset
+                B[:, j] += np.asarray(grid.J[node]).T @ np.r_[np.cross(d, f), f]
     np.testing.assert_allclose(np.asarray(actuation(model, q, jnp.full(3, 0.4))), B,
                                rtol=0, atol=1e-10 * np.abs(B).max())
 
@@ -122,3 +120,59 @@ def test_basis_derivatives_match_autodiff():
               ElementsBasis((0.0, 0.1, 0.3, 0.5), {"torsion": 1, "bending_y": 3})):
         auto = jax.vmap(jax.jacfwd(lambda x: b(x[None], None, jnp)[0]))(jnp.asarray(X))
         np.testing.assert_allclose(b(X, derivative=True), auto, atol=1e-12 * np.abs(auto).max())
+
+
+@pytest.mark.parametrize("elements", [False, True])
+def test_pullback_is_the_transposed_body_jacobian(prototype, elements):
+    """The closed-form pull-back of :func:`kinematics.configuration` (backward wrench
+    recursion) against ``Σ Jᵢᵀ wᵢ`` with the body Jacobians of :func:`grid_frames`, with points
+    off the grid, for both bases; also its forward-mode derivative in q and in the points' X
+    (what a Newton Jacobian takes), and the custom derivative of the poses against plain
+    autodiff through products of exponentials."""
+    from tendonsense.kinematics import configuration, end_stretches, omega
+    from tendonsense.model import points_at
+    robot = prototype.replace(strain=(("torsion", 1), ("bending_y", 2), ("bending_z", 2),
+                                      ("elongation", 1)),
+                              elements=(0.07, 0.16)) if elements else prototype
+    model = model_for(robot)
+    s, v = model.structure, model.values
+    q = random_q(model, 11, scale=1.5)
+    X = jnp.array([0.031, 0.16, 0.2237])
+    rng = np.random.default_rng(3)
+    w_grid = jnp.asarray(rng.normal(size=(v.nodes.shape[0], 6)))
+    c_nu = jnp.asarray(rng.normal(size=(v.h.shape[0], 2, 3)))
+    w_points = jnp.asarray(rng.normal(size=(X.shape[0], 6)))
+
+    def ours(q, X):
+        return configuration(v, q, points_at(s, v, X))[1]((w_grid, c_nu, w_points))
+
+    def theirs(q, X):
+        grid, points = grid_frames(s, v, q, points_at(s, v, X))
+        stretch = jax.vjp(lambda q: end_stretches(v, q), q)[1](c_nu)[0]
+        return (jnp.einsum("nai,na->i", grid.J, w_grid)
+                + jnp.einsum("nai,na->i", points.J, w_points) + stretch)
+
+    expected = theirs(q, X)
+    assert np.abs(expected).max() > 1e-3
+    np.testing.assert_allclose(ours(q, X), expected, rtol=0,
+                               atol=1e-11 * np.abs(expected).max())
+    for arg in (0, 1):
+        a = jax.jacfwd(ours, argnums=arg)(q, X)
+        b = jax.jacfwd(theirs, argnums=arg)(q, X)
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-10 * np.abs(b).max())
+
+    def plain(q):
+        p = points_at(s, v, X)
+        E = jax.vmap(lie.expmap)(omega(q, v.h, v.Phi1, v.Phi2))
+        G = [jnp.eye(4)]
+        for e in E:
+            G.append(G[-1] @ e)
+        g = v.base @ jnp.stack(G)
+        return g, end_stretches(v, q), g[p.start] @ jax.vmap(lie.expmap)(
+            omega(q, p.h, p.Phi1, p.Phi2))
+
+    tq = jnp.asarray(rng.normal(size=q.shape))
+    a = jax.jvp(lambda q: configuration(v, q, points_at(s, v, X))[0], (q,), (tq,))
+    b = jax.jvp(plain, (q,), (tq,))
+    for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)):
+        np.testing.assert_allclose(x, y, rtol=0, atol=1e-11 * np.abs(y).max())

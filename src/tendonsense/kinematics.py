@@ -1,8 +1,10 @@
 """Kinematics: the pose ``g(X)`` by the 4th-order Magnus expansion with the two-point Zannah
 quadrature (eq. 4, appendix) and the body Jacobian ``J(q, X)`` with ``η = J q̇`` (eq. 6).
 
-The solvers use poses alone (:func:`poses`) and take generalized forces ``Jᵀ W`` as the
-pull-back (reverse-mode derivative) of forces through them; :func:`grid_frames` gives J itself.
+The solvers use poses alone (:func:`poses`) and take generalized forces ``Σ Jᵀ w`` of body
+wrenches w (:func:`wrench`) as their pull-back through the poses (:func:`configuration`), by
+the backward wrench recursion of the GVS literature rather than with J: no cost grows with
+the square of the coordinates. :func:`grid_frames` gives J itself.
 
 Recursion over the grid intervals, ``g_{i+1} = g_i exp(Ω_i)`` and
 ``J_{i+1} = Ad_{exp(Ω_i)}^{-1} (J_i + dexp_{Ω_i} ∂Ω_i/∂q)``, exact for the discrete map.
@@ -44,7 +46,7 @@ def omega(q, h, Phi1, Phi2):
     """Ω over steps of length h (appendix): ``Ω = h/2 (ξ1 + ξ2) + √3 h²/12 ad_ξ1 ξ2``."""
     xi1, xi2 = _strains(q, Phi1, Phi2)
     h = h[:, None]
-    return h / 2 * (xi1 + xi2) + _C * h**2 * jnp.einsum("nij,nj->ni", _vad(xi1), xi2)
+    return h / 2 * (xi1 + xi2) + _C * h**2 * lie.ad_apply(xi1, xi2)
 
 
 def magnus(q, h, Phi1, Phi2):
@@ -59,30 +61,88 @@ def magnus(q, h, Phi1, Phi2):
 
 def poses(values: Values, q, *points: PointSet):
     """Poses (n_nodes, 4, 4) at every grid node (base pose included) and, for each of
-    ``points``, at those points — no Jacobians: generalized forces are taken as the pull-back
-    of forces through this map (:func:`force_cotangent`), so the cost of an exact Jacobian
-    grows with the coordinates, not their square."""
-    # each set on its own: points at a traced X must not make the grid's basis a variable
-    E = _vexp(omega(q, values.h, values.Phi1, values.Phi2))
+    ``points``, at those points."""
+    grid, _, *at_points = configuration(values, q, *points)[0]
+    return (grid, *at_points)
+
+
+def configuration(values: Values, q, *points: PointSet):
+    """The configuration ``(grid poses, interval-end stretches, poses at each point set)``
+    (:func:`poses`, :func:`end_stretches`) and its pull-back ``pull(loads) -> Q``: for
+    ``loads = (w_grid, c_nu, *w_points)``, body wrenches at the grid nodes and at the points
+    (:func:`wrench`) and a cotangent of the stretches, the generalized force
+    ``Σ_i J_iᵀ w_i + (∂ν/∂q)ᵀ c_nu`` (eq. 8b, 13–14).
+
+    The pull-back is the backward wrench recursion in closed form: with ``G_i`` the grid
+    poses relative to the base, ``S_i = Σ_{j≥i} Ad*_{G_j⁻¹} w_j`` (a reverse cumulative sum)
+    and ``Q = Σ_i (dexp_{Ω_i} ∂Ω_i/∂q)ᵀ Ad_{G_i}ᵀ S_{i+1}`` (eq. 6 transposed); every product
+    is a matrix-vector product, so that its exact forward-mode Jacobian is cheap."""
+    Omega = omega(q, values.h, values.Phi1, values.Phi2)
+    point_omegas = tuple(omega(q, p.h, p.Phi1, p.Phi2) for p in points)
+    G, at_points = _products(Omega, tuple(p.start for p in points), point_omegas)
+    grid = values.base @ G
+    at_points = tuple(values.base @ g for g in at_points)
+
+    def pull(loads):
+        w, c_nu, *w_points = loads
+        Q = jnp.einsum("naki,nak->i", values.stretch_ends, c_nu)
+        for p, O, w_p in zip(points, point_omegas, w_points):
+            w_p = lie.coAd_apply(_vexp(O), w_p)  # in the frame of the node below
+            w = w.at[p.start].add(w_p)
+            Q = Q + _omega_pullback(q, p.h, p.Phi1, p.Phi2,
+                                    lie.dexp_apply(O, w_p, transpose=True))
+        S = jnp.cumsum(lie.coAd_apply(G, w)[::-1], axis=0)[::-1]
+        u = lie.dexp_apply(Omega, lie.Ad_T_apply(G[:-1], S[1:]), transpose=True)
+        return Q + _omega_pullback(q, values.h, values.Phi1, values.Phi2, u)
+
+    return (grid, end_stretches(values, q), *at_points), pull
+
+
+def wrench(g, f, offsets=None):
+    """Body wrenches ``[d × Rᵀf; Rᵀf]`` (..., 6) of global forces f (..., 3) acting at
+    ``g [d; 1]`` (d in the cross-section frame; at the origin without ``offsets``)."""
+    local = jnp.einsum("...ji,...j->...i", g[..., :3, :3], f)
+    moment = jnp.zeros_like(local) if offsets is None else jnp.cross(offsets, local)
+    return jnp.concatenate([moment, local], axis=-1)
+
+
+@jax.custom_jvp
+def _products(Omega, starts, point_omegas):
+    """``G_i = exp(Ω_0) ⋯ exp(Ω_{i−1})`` (G_0 = I; a parallel prefix product) and, for each
+    point set, ``G_start exp(Ω_p)``."""
+    E = _vexp(Omega)
     eye = jnp.eye(4, dtype=E.dtype)[None]
-    g = values.base @ jnp.concatenate([eye, jax.lax.associative_scan(jnp.matmul, E)])
-    return (g, *(g[p.start] @ _vexp(omega(q, p.h, p.Phi1, p.Phi2)) for p in points))
+    G = jnp.concatenate([eye, jax.lax.associative_scan(jnp.matmul, E)])
+    return G, tuple(G[s] @ _vexp(O) for s, O in zip(starts, point_omegas))
+
+
+@_products.defjvp
+def _products_jvp(primals, tangents):
+    """Spatial twists ``σ = δG G⁻¹``: ``σ_{i+1} = σ_i + Ad_{G_i} dexp_{Ω_i} δΩ_i`` (eq. 6 in
+    the base frame), matrix-vector products only."""
+    Omega, starts, point_omegas = primals
+    dOmega, _, d_points = tangents
+    G, at_points = _products(Omega, starts, point_omegas)
+    step = lie.Ad_apply(G[:-1], lie.dexp_apply(Omega, dOmega))
+    sigma = jnp.concatenate([jnp.zeros((1, 6), G.dtype), jnp.cumsum(step, axis=0)])
+    d_points = tuple(
+        lie.hat_times(sigma[s] + lie.Ad_apply(G[s], lie.dexp_apply(O, dO)), g)
+        for s, O, dO, g in zip(starts, point_omegas, d_points, at_points))
+    return (G, at_points), (lie.hat_times(sigma, G), d_points)
+
+
+def _omega_pullback(q, h, Phi1, Phi2, u):
+    """``Σ_i (∂Ω_i/∂q)ᵀ u_i`` (:func:`magnus`) by matrix-vector products."""
+    xi1, xi2 = _strains(q, Phi1, Phi2)
+    h = h[:, None]
+    u1 = h / 2 * u - _C * h**2 * lie.ad_apply(xi2, u, transpose=True)
+    u2 = h / 2 * u + _C * h**2 * lie.ad_apply(xi1, u, transpose=True)
+    return jnp.einsum("nai,na->i", Phi1, u1) + jnp.einsum("nai,na->i", Phi2, u2)
 
 
 def end_stretches(values: Values, q):
     """The linear strain ν (body frame) at the two ends of every interval, (n_int, 2, 3)."""
     return values.stretch_ends @ q + _XI_STAR[3:]
-
-
-def force_cotangent(f, offsets=None):
-    """The cotangent of a pose ``g`` for a global force ``f`` at ``g [d; 1]``: the derivative
-    of the virtual work ``f · (p + R d)`` with respect to g, so that pulling it back through
-    :func:`poses` gives the generalized force ``Jᵀ [d × Rᵀf; Rᵀf]`` of eq. 8b and 13–14."""
-    top = f[..., :, None] if offsets is None else jnp.concatenate(
-        [f[..., :, None] * offsets[..., None, :], f[..., :, None]], axis=-1)
-    if offsets is None:
-        top = jnp.concatenate([jnp.zeros(f.shape + (3,), f.dtype), top], axis=-1)
-    return jnp.concatenate([top, jnp.zeros(f.shape[:-1] + (1, 4), f.dtype)], axis=-2)
 
 
 def grid_frames(structure: Structure, values: Values, q, *points: PointSet):

@@ -1,13 +1,17 @@
 """SE(3) / se(3) utilities (paper appendix).
 
-Twists and wrenches are ordered ``[angular; linear]``. Every function acts on a single
-element; use :func:`jax.vmap` for batches. Small-angle forms are evaluated from their Taylor
-series so that values *and* derivatives stay exact at zero rotation.
+Twists and wrenches are ordered ``[angular; linear]``. The matrix-valued functions act on a
+single element (use :func:`jax.vmap` for batches); the ``*_apply`` operators act on batches
+(leading axes) as matrix-vector products, without forming the 6x6 matrices. Small-angle forms
+are evaluated from their Taylor series so that values *and* derivatives stay exact at zero
+rotation.
 """
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+from jax.custom_derivatives import SymbolicZero
 
 _SMALL = 1e-2  # theta^2 below which the Taylor series are used (theta < 0.1)
 
@@ -86,10 +90,11 @@ def expmap(Omega):
     return jnp.concatenate([top, jnp.array([[0.0, 0.0, 0.0, 1.0]], Omega.dtype)], axis=0)
 
 
-def dexp(Omega):
-    """Tangent operator of the exponential, ``dexp_Ω = Σ_k ad_Ω^k / (k+1)!`` in closed form,
-    so that ``exp(Ω)^-1 d exp(Ω) = (Ad_{exp(-Ω)} dexp_Ω dΩ)^``."""
-    t2, t, small = _theta(Omega[:3])
+def _dexp_coefficients(Omega):
+    """``a1..a4`` of ``dexp_Ω = I + a1 ad + a2 ad² + a3 ad³ + a4 ad⁴`` (batched, θ = |Ω_w|)."""
+    t2 = jnp.sum(Omega[..., :3] ** 2, axis=-1)
+    small = t2 < _SMALL
+    t = jnp.sqrt(jnp.where(small, 1.0, t2))
     s, c = jnp.sin(t), jnp.cos(t)
     a1 = jnp.where(small, 1 / 2 - t2**2 / 720 + t2**3 / 20160 - t2**4 / 1209600,
                    (4 - 4 * c - t * s) / (2 * t**2))
@@ -100,10 +105,107 @@ def dexp(Omega):
     a4 = jnp.where(small, 1 / 120 - t2 / 2520 + t2**2 / 120960 - t2**3 / 9979200
                    + t2**4 / 1245404160,
                    (2 * t - 3 * s + t * c) / (2 * t**5))
+    return a1, a2, a3, a4
+
+
+def dexp(Omega):
+    """Tangent operator of the exponential, ``dexp_Ω = Σ_k ad_Ω^k / (k+1)!`` in closed form,
+    so that ``exp(Ω)^-1 d exp(Ω) = (Ad_{exp(-Ω)} dexp_Ω dΩ)^``."""
+    a1, a2, a3, a4 = _dexp_coefficients(Omega)
     A = ad(Omega)
     A2 = A @ A
     A3 = A2 @ A
     return jnp.eye(6, dtype=Omega.dtype) + a1 * A + a2 * A2 + a3 * A3 + a4 * (A3 @ A)
+
+
+def ad_apply(xi, u, transpose=False):
+    """``ad_ξ u`` (or ``ad_ξᵀ u``), batched: ``[w × m; v × m + w × f]`` for ξ = [w; v],
+    u = [m; f] (transposed: ``[−w × m − v × f; −w × f]``)."""
+    w, v, m, f = xi[..., :3], xi[..., 3:], u[..., :3], u[..., 3:]
+    if transpose:
+        return jnp.concatenate([-jnp.cross(w, m) - jnp.cross(v, f), -jnp.cross(w, f)], -1)
+    return jnp.concatenate([jnp.cross(w, m), jnp.cross(v, m) + jnp.cross(w, f)], -1)
+
+
+def pointwise(f):
+    """``f`` of batches (arrays (..., k), the same leading axes, acting on each element alone)
+    with its forward-mode derivative as one small Jacobian per element (found by as many
+    passes as the element has components) applied to the tangents: cheaper than carrying
+    many tangents through every operation of ``f``."""
+
+    @jax.custom_jvp
+    def g(*args):
+        return f(*args)
+
+    def rule(primals, tangents):
+        out, d_out = f(*primals), None
+        for i, (x, dx) in enumerate(zip(primals, tangents)):
+            if isinstance(dx, SymbolicZero):
+                continue
+            def along(e, i=i):
+                return jax.jvp(lambda y: f(*primals[:i], y, *primals[i + 1:]), (x,), (e,))[1]
+            basis = jnp.broadcast_to(jnp.eye(x.shape[-1], dtype=x.dtype)[:, None],
+                                     (x.shape[-1],) + x.shape)
+            columns = jax.vmap(along)(basis)  # (k, ..., n_out)
+            # unrolled: a loop fusion, not a batch of tiny matrix products
+            term = sum(columns[k] * dx[..., k, None] for k in range(x.shape[-1]))
+            d_out = term if d_out is None else d_out + term
+        return out, jnp.zeros_like(out) if d_out is None else d_out
+
+    g.defjvp(rule, symbolic_zeros=True)
+    return g
+
+
+def dexp_apply(Omega, v, transpose=False):
+    """``dexp_Ω v`` (or ``dexp_Ωᵀ v``), batched, by Horner's scheme in ad_Ω."""
+    return (_dexp_T_apply if transpose else _dexp_apply)(Omega, v)
+
+
+def _horner(Omega, v, transpose):
+    a = _dexp_coefficients(Omega)
+    out = a[3][..., None] * ad_apply(Omega, v, transpose)
+    for c in a[2::-1]:
+        out = ad_apply(Omega, c[..., None] * v + out, transpose)
+    return v + out
+
+
+_dexp_apply = pointwise(lambda Omega, v: _horner(Omega, v, False))
+_dexp_T_apply = pointwise(lambda Omega, v: _horner(Omega, v, True))
+
+
+def Ad_apply(g, eta):
+    """``Ad_g η`` for poses g (..., 4, 4): ``[R w; r × R w + R v]``."""
+    R, r = g[..., :3, :3], g[..., :3, 3]
+    Rw, Rv = jnp.einsum("...ij,...j->...i", R, eta[..., :3]), jnp.einsum(
+        "...ij,...j->...i", R, eta[..., 3:])
+    return jnp.concatenate([Rw, jnp.cross(r, Rw) + Rv], -1)
+
+
+def coAd_apply(g, w):
+    """``Ad_{g⁻¹}ᵀ w``: a wrench w = [m; f] in the frame g, in the frame g is given in:
+    ``[R m + r × R f; R f]``."""
+    R, r = g[..., :3, :3], g[..., :3, 3]
+    Rm, Rf = jnp.einsum("...ij,...j->...i", R, w[..., :3]), jnp.einsum(
+        "...ij,...j->...i", R, w[..., 3:])
+    return jnp.concatenate([Rm + jnp.cross(r, Rf), Rf], -1)
+
+
+def Ad_T_apply(g, w):
+    """``Ad_gᵀ w``, the inverse of :func:`coAd_apply`: ``[Rᵀ(m − r × f); Rᵀ f]``."""
+    R, r = g[..., :3, :3], g[..., :3, 3]
+    m, f = w[..., :3], w[..., 3:]
+    return jnp.concatenate([jnp.einsum("...ji,...j->...i", R, m - jnp.cross(r, f)),
+                            jnp.einsum("...ji,...j->...i", R, f)], -1)
+
+
+def hat_times(sigma, g):
+    """``σ^ g`` for twists σ and poses g, batched (the derivative of g along a spatial
+    twist)."""
+    w, v = sigma[..., :3], sigma[..., 3:]
+    R, r = g[..., :3, :3], g[..., :3, 3]
+    top = jnp.concatenate([jnp.cross(w[..., :, None], R, axis=-2),
+                           (jnp.cross(w, r) + v)[..., None]], -1)
+    return jnp.concatenate([top, jnp.zeros_like(g[..., 3:, :])], -2)
 
 
 def safe_norm(x):

@@ -22,7 +22,7 @@ import numpy as np
 
 from . import linalg, loads, tendons
 from .compiled import Program
-from .kinematics import end_stretches, poses, positions
+from .kinematics import configuration, poses, positions
 from .model import VALUE_NAMES, Structure, Values, points_at
 
 #: compiled programs kept per kind (each keyed by structure); older ones are released
@@ -75,9 +75,9 @@ class Terms(NamedTuple):
 
 def terms(structure: Structure, values: Values, q, z, drive: Drive, unknowns: Unknowns,
           lam) -> Terms:
-    """Every generalized force is one pull-back of forces through the poses (reverse mode), so
-    that its exact Jacobian (forward over reverse) costs O(nq) passes, not O(nq²) body
-    Jacobians."""
+    """Every generalized force is one pull-back of forces through the poses
+    (:func:`~tendonsense.kinematics.configuration`), so that its exact Jacobian (forward mode
+    through the pull-back) costs O(nq) passes, not O(nq²) body Jacobians."""
     T = lam * drive.tensions + unknowns.tensions @ z
     a = lam * drive.gravity + z @ unknowns.gravity
     n_loc = unknowns.positions.shape[0]
@@ -86,20 +86,18 @@ def terms(structure: Structure, values: Values, q, z, drive: Drive, unknowns: Un
     if values.masses.shape[0]:
         sets.append(points_at(structure, values, values.mass_X))
 
-    def configuration(q):
-        grid, *points = poses(values, q, *sets)
-        return (grid, end_stretches(values, q), *points)
-
-    (grid, nu, *_), pull = jax.vjp(configuration, q)
-    unit = tendons.unit_cotangents(structure, values, grid, values.friction)
-    weight_g, weight_nu = loads.gravity(values, grid, nu, a)  # eq. 8b
-    point = [loads.point_forces(lam * drive.forces + jnp.tensordot(z, unknowns.forces, axes=1))
-             ] if drive.load_X.shape[0] else []
+    (grid, nu, *points), pull = configuration(values, q, *sets)
+    unit = tendons.unit_wrenches(structure, values, grid, values.friction)
+    weight, weight_nu = loads.gravity(values, grid, nu, a)  # eq. 8b
+    at_points = []
+    if drive.load_X.shape[0]:
+        at_points.append(loads.point_forces(
+            points[0], lam * drive.forces + jnp.tensordot(z, unknowns.forces, axes=1)))
     if values.masses.shape[0]:
-        point.append(loads.lumped_masses(values, a))
-    load = pull((jnp.tensordot(T, unit, axes=1) + weight_g, weight_nu, *point))[0]
-    zeros = [jnp.zeros_like(nu), *(jnp.zeros_like(c) for c in point)]
-    B = jax.vmap(lambda c: pull((c, *zeros))[0])(unit).T
+        at_points.append(loads.lumped_masses(values, points[-1], a))
+    load = pull((jnp.tensordot(T, unit, axes=1) + weight, weight_nu, *at_points))
+    zeros = [jnp.zeros_like(nu), *(jnp.zeros_like(w) for w in at_points)]
+    B = jax.vmap(lambda w: pull((w, *zeros)))(unit).T
     if structure.continuous:
         continuous = tendons.continuous_actuation(structure, values, q, values.friction)
         B, load = B + continuous, load + continuous @ T

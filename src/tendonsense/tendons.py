@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
-from .kinematics import force_cotangent, poses
+from .kinematics import configuration, wrench
 from .model import Structure, TendonGroup, Values
 
 
@@ -140,15 +140,15 @@ def _continuous(q, mu, ct, h):
     return B, J_q, J_mu
 
 
-def unit_cotangents(structure: Structure, values: Values, g, friction):
-    """The pull of a unit tension of each tendon as cotangents of the grid poses,
-    shape (n_t, n_nodes, 4, 4) (:func:`~tendonsense.kinematics.force_cotangent`).
+def unit_wrenches(structure: Structure, values: Values, g, friction):
+    """The pull of a unit tension of each tendon as body wrenches at the grid nodes ``g``,
+    shape (n_t, n_nodes, 6) (:func:`~tendonsense.kinematics.wrench`).
 
     At disk i the tendon pulls with ``f_i = T_i v_L + T_{i+1} v_R`` (eq. 12) where the tension
     drops by ``exp(−μ φ_i)`` across every disk (eq. 10), ``φ_i`` the angle the tendon turns there;
     at the first disk it arrives from the actuator along the local −x axis.
     """
-    out = jnp.zeros((structure.n_tendons,) + g.shape, g.dtype)
+    out = jnp.zeros((structure.n_tendons, g.shape[0], 6), g.dtype)
     for index, grp in zip(structure.groups, values.tendons):
         index = np.array(index)
         at, r = path(grp, g)
@@ -162,15 +162,16 @@ def unit_cotangents(structure: Structure, values: Values, g, friction):
         ratio = jnp.exp(-mu * jnp.concatenate([jnp.zeros((k, 1)), jnp.cumsum(phi, axis=1)], axis=1))
         after = jnp.concatenate([ratio[:, 1:], jnp.zeros((k, 1))], axis=1)
         f = ratio[..., None] * v_L + after[..., None] * v_R  # eq. 12
-        out = out.at[index[:, None], grp.nodes].add(force_cotangent(f, grp.offsets))  # eq. 13
+        out = out.at[index[:, None], grp.nodes].add(wrench(at, f, grp.offsets))  # eq. 13
     return out
 
 
 def actuation(structure: Structure, values: Values, q, friction):
     """``B(q)`` of eq. 14, shape (nq, n_t): the generalized force of a unit tension, the
-    pull-back of :func:`unit_cotangents` through the grid poses."""
-    g, pull = jax.vjp(lambda q: poses(values, q)[0], q)
-    return (jax.vmap(lambda c: pull(c)[0])(unit_cotangents(structure, values, g, friction)).T
+    pull-back of :func:`unit_wrenches` through the grid poses."""
+    (g, nu), pull = configuration(values, q)
+    zero = jnp.zeros_like(nu)
+    return (jax.vmap(lambda w: pull((w, zero)))(unit_wrenches(structure, values, g, friction)).T
             + continuous_actuation(structure, values, q, friction))
 
 
