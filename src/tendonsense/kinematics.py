@@ -12,6 +12,7 @@ Recursion over the grid intervals, ``g_{i+1} = g_i exp(Ω_i)`` and
 
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -76,26 +77,29 @@ def configuration(values: Values, q, *points: PointSet):
     The pull-back is the backward wrench recursion in closed form: with ``G_i`` the grid
     poses relative to the base, ``S_i = Σ_{j≥i} Ad*_{G_j⁻¹} w_j`` (a reverse cumulative sum)
     and ``Q = Σ_i (dexp_{Ω_i} ∂Ω_i/∂q)ᵀ Ad_{G_i}ᵀ S_{i+1}`` (eq. 6 transposed); every product
-    is a matrix-vector product, so that its exact forward-mode Jacobian is cheap."""
-    Omega = omega(q, values.h, values.Phi1, values.Phi2)
-    point_omegas = tuple(omega(q, p.h, p.Phi1, p.Phi2) for p in points)
-    G, at_points = _products(Omega, tuple(p.start for p in points), point_omegas)
+    is a matrix-vector product, so that its exact forward-mode Jacobian is cheap. The grid
+    intervals and the points' partial steps are evaluated as one batch."""
+    n = values.h.shape[0]
+    sizes = [p.h.shape[0] for p in points]
+    h, Phi1, Phi2 = (jnp.concatenate([getattr(values, f), *(getattr(p, f) for p in points)])
+                     for f in ("h", "Phi1", "Phi2"))
+    starts = jnp.concatenate([jnp.zeros(0, int), *(p.start for p in points)])
+    Omega = omega(q, h, Phi1, Phi2)
+    G, at_points = _products(Omega, starts, n)
     grid = values.base @ G
-    at_points = tuple(values.base @ g for g in at_points)
+    at_points = values.base @ at_points
+    cut = np.cumsum(sizes)[:-1]
 
     def pull(loads):
         w, c_nu, *w_points = loads
-        Q = jnp.einsum("naki,nak->i", values.stretch_ends, c_nu)
-        for p, O, w_p in zip(points, point_omegas, w_points):
-            w_p = lie.coAd_apply(_vexp(O), w_p)  # in the frame of the node below
-            w = w.at[p.start].add(w_p)
-            Q = Q + _omega_pullback(q, p.h, p.Phi1, p.Phi2,
-                                    lie.dexp_apply(O, w_p, transpose=True))
+        w_p = lie.coAd_apply(_vexp(Omega[n:]), jnp.concatenate([jnp.zeros((0, 6)), *w_points]))
+        w = w.at[starts].add(w_p)  # in the frames of the nodes below the points
         S = jnp.cumsum(lie.coAd_apply(G, w)[::-1], axis=0)[::-1]
-        u = lie.dexp_apply(Omega, lie.Ad_T_apply(G[:-1], S[1:]), transpose=True)
-        return Q + _omega_pullback(q, values.h, values.Phi1, values.Phi2, u)
+        u = lie.dexp_apply(Omega, jnp.concatenate([lie.Ad_T_apply(G[:-1], S[1:]), w_p]),
+                           transpose=True)
+        return _omega_pullback(q, h, Phi1, Phi2, u) + _contract(c_nu, values.stretch_ends)
 
-    return (grid, end_stretches(values, q), *at_points), pull
+    return (grid, end_stretches(values, q), *(jnp.split(at_points, cut) if points else ())), pull
 
 
 def wrench(g, f, offsets=None):
@@ -106,29 +110,27 @@ def wrench(g, f, offsets=None):
     return jnp.concatenate([moment, local], axis=-1)
 
 
-@jax.custom_jvp
-def _products(Omega, starts, point_omegas):
-    """``G_i = exp(Ω_0) ⋯ exp(Ω_{i−1})`` (G_0 = I; a parallel prefix product) and, for each
-    point set, ``G_start exp(Ω_p)``."""
+@partial(jax.custom_jvp, nondiff_argnums=(2,))
+def _products(Omega, starts, n):
+    """``G_i = exp(Ω_0) ⋯ exp(Ω_{i−1})`` (G_0 = I; a parallel prefix product) over the first
+    ``n`` steps Ω, and ``G_start exp(Ω_p)`` for the steps Ω_p after them."""
     E = _vexp(Omega)
     eye = jnp.eye(4, dtype=E.dtype)[None]
-    G = jnp.concatenate([eye, jax.lax.associative_scan(jnp.matmul, E)])
-    return G, tuple(G[s] @ _vexp(O) for s, O in zip(starts, point_omegas))
+    G = jnp.concatenate([eye, jax.lax.associative_scan(jnp.matmul, E[:n])])
+    return G, G[starts] @ E[n:]
 
 
 @_products.defjvp
-def _products_jvp(primals, tangents):
+def _products_jvp(n, primals, tangents):
     """Spatial twists ``σ = δG G⁻¹``: ``σ_{i+1} = σ_i + Ad_{G_i} dexp_{Ω_i} δΩ_i`` (eq. 6 in
     the base frame), matrix-vector products only."""
-    Omega, starts, point_omegas = primals
-    dOmega, _, d_points = tangents
-    G, at_points = _products(Omega, starts, point_omegas)
-    step = lie.Ad_apply(G[:-1], lie.dexp_apply(Omega, dOmega))
-    sigma = jnp.concatenate([jnp.zeros((1, 6), G.dtype), jnp.cumsum(step, axis=0)])
-    d_points = tuple(
-        lie.hat_times(sigma[s] + lie.Ad_apply(G[s], lie.dexp_apply(O, dO)), g)
-        for s, O, dO, g in zip(starts, point_omegas, d_points, at_points))
-    return (G, at_points), (lie.hat_times(sigma, G), d_points)
+    Omega, starts = primals
+    G, at_points = _products(Omega, starts, n)
+    step = lie.dexp_apply(Omega, tangents[0])
+    sigma = jnp.concatenate([jnp.zeros((1, 6), G.dtype),
+                             jnp.cumsum(lie.Ad_apply(G[:-1], step[:n]), axis=0)])
+    sigma_points = sigma[starts] + lie.Ad_apply(G[starts], step[n:])
+    return (G, at_points), (lie.hat_times(sigma, G), lie.hat_times(sigma_points, at_points))
 
 
 def _omega_pullback(q, h, Phi1, Phi2, u):
@@ -137,7 +139,13 @@ def _omega_pullback(q, h, Phi1, Phi2, u):
     h = h[:, None]
     u1 = h / 2 * u - _C * h**2 * lie.ad_apply(xi2, u, transpose=True)
     u2 = h / 2 * u + _C * h**2 * lie.ad_apply(xi1, u, transpose=True)
-    return jnp.einsum("nai,na->i", Phi1, u1) + jnp.einsum("nai,na->i", Phi2, u2)
+    return _contract(u1, Phi1) + _contract(u2, Phi2)
+
+
+def _contract(u, M):
+    """``Σ u[...] M[..., :]`` as a row vector times the matrix M (..., nq) as stored, which
+    XLA does without a transposed copy of M."""
+    return jnp.reshape(u, (-1,)) @ jnp.reshape(M, (u.size, -1))
 
 
 def end_stretches(values: Values, q):

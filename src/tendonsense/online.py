@@ -52,6 +52,8 @@ class OnlineEstimator:
         self._tcols = tuple(range(model.n_tendons))
         self._init, self._step = stepper(model.structure, prob.measured, prob.n_z,
                                          self._tcols, 4)
+        # on the device once: a numpy leaf would be copied in at every call
+        self._values, self._unknowns = jax.device_put((model.values, prob.unknowns))
         self._carry = None
         self._x = None  # last good [q; z]
         self._eval_cost = None  # s per evaluation with a Jacobian, measured
@@ -76,7 +78,7 @@ class OnlineEstimator:
         targets = y[list(prob.measured)]
         drive = self._ref.drive(T, targets)
         model = prob.model
-        values, unknowns = model.values, prob.unknowns
+        values, unknowns = self._values, self._unknowns
         if prob.located and self._x is None:  # no X yet: search its whole range
             return self._after_rescue(T, targets, displacements, tensions, None, 0,
                                       "no estimate of the location", None)
@@ -115,8 +117,8 @@ class OnlineEstimator:
                       row):
         """A rescue solve, then one step of the fast path from it (which also gives the
         sensitivities): the estimate, or a failed sample."""
-        prob, model = self.problem, self.problem.model
-        values, unknowns = model.values, prob.unknowns
+        prob = self.problem
+        values, unknowns = self._values, self._unknowns
         t0 = time.perf_counter()
         x, converged, evaluations = self._rescue(
             self._ref.drive(T, targets), displacements, tensions, budget)
@@ -162,8 +164,7 @@ class OnlineEstimator:
     def _time_jacobian(self, drive) -> float:
         """Seconds per exact Jacobian, timed after compilation: the square init computes one;
         a least-squares step from the init computes at least one."""
-        prob = self.problem
-        args = (drive, {}, prob.unknowns, prob.model.values)
+        args = (drive, {}, self._unknowns, self._values)
         best = []
         for _ in range(3):  # the least of three: the first runs may still warm up
             t0 = time.perf_counter()

@@ -27,8 +27,8 @@ from .forward import model_for, tendon_vector
 from .kinematics import poses, positions
 from .model import VALUE_NAMES, Structure, points_at
 from .robot import Robot
-from .statics import (CACHE_SIZE, Drive, Unknowns, admissible, residual, scaling,
-                      shape_outputs, solve_system)
+from .statics import (CACHE_SIZE, Drive, Scaling, Unknowns, admissible, residual,
+                      scaling, shape_outputs, solve_system)
 
 
 class Track(NamedTuple):
@@ -54,6 +54,7 @@ class Carry(NamedTuple):
     measurements: jax.Array
     ok: jax.Array
     count: jax.Array
+    scaling: Scaling  # of the residual, for samples that keep the values of the first
 
 
 #: work budget of one sample on the fast path: residual evaluations and exact Jacobians
@@ -70,13 +71,15 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
     tcols = np.array(tension_columns, int)
     sel = np.array(measured, int)
 
-    def at(values, p):  # the values of one sample and their residual scaling
-        v = values._replace(**p) if p else values
-        return v, scaling(v, measured)
+    def at(values, p, sc=None):  # the values of one sample and their residual scaling
+        if p or sc is None:  # (a Cholesky factorisation and inverse: not per sample)
+            v = values._replace(**p) if p else values
+            return v, scaling(v, measured)
+        return values, sc
 
-    def f(x, d, unknowns, vs):  # (r, load size, ∂r/∂T)
+    def f(x, d, unknowns, vs, with_actuation=False):  # (r, load size[, ∂r/∂T])
         return residual(structure, vs[0], measured, x, d, unknowns, 1.0, vs[1],
-                        with_actuation=True)
+                        with_actuation=with_actuation)
 
     def jac(x, d, unknowns, vs):
         return jax.jacfwd(lambda x: f(x, d, unknowns, vs)[0])(x)
@@ -90,18 +93,20 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
 
     def init(x0, d0, p0, unknowns, values):
         m0 = measurements(d0)
-        return Carry(x0, linalg.inv(jac(x0, d0, unknowns, at(values, p0))),
-                     jnp.zeros((x0.size, m0.size)), m0, jnp.asarray(False), jnp.asarray(0))
+        vs = at(values, p0)
+        return Carry(x0, linalg.inv(jac(x0, d0, unknowns, vs)),
+                     jnp.zeros((x0.size, m0.size)), m0, jnp.asarray(False), jnp.asarray(0),
+                     vs[1])
 
     def step(carry: Carry, d, p, unknowns, values):
-        vs = at(values, p)
+        vs = at(values, p, carry.scaling)
         sc = vs[1]
         floor = vs[0].energy_floor * jnp.sqrt(vs[0].young_modulus)
         # first-order tangent predictor from the previous sample's sensitivity
         guess = carry.x + jnp.where(carry.ok, carry.dx_dm @ (measurements(d) - carry.measurements),
                                     0.0)
-        r, s, rT = f(guess, d, unknowns, vs)
-        st = dict(x=guess, r=r, s=s, rT=rT, H=carry.H, fresh=jnp.asarray(False),
+        r, s = f(guess, d, unknowns, vs)
+        st = dict(x=guess, r=r, s=s, H=carry.H, fresh=jnp.asarray(False),
                   alpha=jnp.asarray(1.0), evals=jnp.asarray(1), jacs=jnp.asarray(0),
                   status=jnp.where(jnp.linalg.norm(r) <= num.tolerance * (s + floor), 1, 0))
 
@@ -111,7 +116,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         def body(st):
             dx = -st["H"] @ st["r"]
             xt = st["x"] + st["alpha"] * dx
-            rt, ts, rTt = f(xt, d, unknowns, vs)
+            rt, ts = f(xt, d, unknowns, vs)
             m0, mt = merit(st["r"]), merit(rt)
             contracts = mt <= 0.25 * m0
             armijo = mt <= (1 - 2e-4 * st["alpha"]) * m0
@@ -131,7 +136,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
                 refresh & (st["jacs"] >= MAX_JACOBIANS))
             return dict(
                 x=jnp.where(accept, xt, st["x"]), r=jnp.where(accept, rt, st["r"]),
-                s=jnp.where(accept, ts, st["s"]), rT=jnp.where(accept, rTt, st["rT"]), H=H,
+                s=jnp.where(accept, ts, st["s"]), H=H,
                 fresh=jnp.where(accept, False, True),
                 alpha=jnp.where(accept | refresh, 1.0, st["alpha"] / 2),
                 evals=st["evals"] + 1, jacs=st["jacs"] + refresh.astype(int),
@@ -145,7 +150,8 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         # ∂r/∂y_meas is −√k on the length rows, ∂r/∂T = −L⁻¹B on the equilibrium rows
         Ry = jnp.zeros((x.size, sel.size)).at[nq + jnp.arange(sel.size),
                                                jnp.arange(sel.size)].set(-sc.root_k)
-        Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)
+        rT = f(x, d, unknowns, vs, with_actuation=True)[2]  # once, not in every evaluation
+        Rm = jnp.concatenate([Ry, rT[:, tcols]], axis=1)
         Rx = jax.vmap(lambda u: jax.jvp(lambda x: f(x, d, unknowns, vs)[0], (x,), (u,))[1],
                       in_axes=1, out_axes=1)
 
@@ -169,14 +175,14 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         markers = positions(g, values.marker_offsets)
         y = tendons.length_changes(structure, values, grid, x[:nq])
         # a failed sample leaves the carry as it was: the next one starts from the last good
-        new = Carry(x, H, dx_dm, measurements(d), ok, carry.count + 1)
+        new = Carry(x, H, dx_dm, measurements(d), ok, carry.count + 1, carry.scaling)
         keep = carry._replace(count=carry.count + 1)
         out = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, keep)
         return out, Track(x, ok, evals, jacs, dx_dm, markers, y, fine)
 
     def linear(x, d, unknowns, vs):  # (J, r, load size, ∂r/∂T), one residual evaluation
         def with_aux(x):
-            out = f(x, d, unknowns, vs)
+            out = f(x, d, unknowns, vs, with_actuation=True)
             return out[0], out
         J, (r, s, rT) = jax.jacfwd(with_aux, has_aux=True)(x)
         return J, r, s, rT
@@ -196,10 +202,10 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         m0 = measurements(d0)
         n = nq + n_z
         return Carry(x0, jnp.zeros((n, n)), jnp.zeros((n, m0.size)), m0, jnp.asarray(False),
-                     jnp.asarray(0))
+                     jnp.asarray(0), at(values, p0)[1])
 
     def step_ls(carry: Carry, d, p, unknowns, values):
-        vs = at(values, p)
+        vs = at(values, p, carry.scaling)
         floor = vs[0].energy_floor * jnp.sqrt(vs[0].young_modulus)
         guess = carry.x + jnp.where(carry.ok, carry.dx_dm @ (measurements(d) - carry.measurements),
                                     0.0)
