@@ -1,7 +1,10 @@
 """Live estimation (issue 9): latency of ``OnlineEstimator.update``, the cost of impossible
 samples, an overdetermined log, the CLI stream's row round trip and start-up.
 
-    python benchmarks/online.py [--samples 10000]
+    python benchmarks/online.py [--samples 10000] [--elements]
+
+With ``--elements`` the prototype has the elements basis of ``benchmarks/elements.py`` (8
+elements between the disks, 72 coordinates) instead of the paper's global one.
 
 Prints medians and tails; timings on the shared 2-core machine vary by about ±20 %.
 """
@@ -11,6 +14,7 @@ from __future__ import annotations
 import argparse
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -35,12 +39,21 @@ def smooth_log(robot, n, tendons=("t1",)):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=10000)
+    ap.add_argument("--elements", action="store_true",
+                    help="the elements basis between the disks (72 coordinates)")
     args = ap.parse_args(argv)
     from tendonsense import load_robot
     from tendonsense.estimation import PointForceUnknown, problem
     from tendonsense.online import OnlineEstimator
+    from tendonsense.robot import robot_to_toml
 
-    robot = load_robot(ROBOT)
+    robot, robot_file = load_robot(ROBOT), ROBOT
+    if args.elements:
+        sys.path.insert(0, str(Path(__file__).parent))
+        from elements import ELEMENTS
+        robot = robot.replace(**ELEMENTS)
+        robot_file = Path(tempfile.mkdtemp()) / "prototype_elements.toml"
+        robot_file.write_text(robot_to_toml(robot))
     n = args.samples
     F, T, Y = smooth_log(robot, n)
     names = robot.tendon_names
@@ -101,8 +114,8 @@ def main(argv=None):
           f"per sample, {ok3}/200 converged and right")
 
     # 4. the CLI stream: round trip of one row through a pipe
-    proc = subprocess.Popen([sys.executable, "-m", "tendonsense.cli", "estimate", str(ROBOT),
-                             "--readings", "-", "--unknown", "0.25,0,0,-1"],
+    proc = subprocess.Popen([sys.executable, "-m", "tendonsense.cli", "estimate",
+                             str(robot_file), "--readings", "-", "--unknown", "0.25,0,0,-1"],
                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                             text=True, bufsize=1)
     proc.stdin.write("time,tension_t1,displacement_t1\n")
@@ -132,8 +145,8 @@ def main(argv=None):
     bare = wall([sys.executable, "-c", "import jax; jax.config.update('jax_enable_x64', True); "
                  "jax.jit(lambda x: x + 1)(1.0).block_until_ready()"])
     tool = [sys.executable, "-m", "tendonsense.cli"]
-    s = wall(tool + ["solve", str(ROBOT), "--tension", "t1=2.0"])
-    e = wall(tool + ["estimate", str(ROBOT), "--displacement", "t1=-0.005", "--tension",
+    s = wall(tool + ["solve", str(robot_file), "--tension", "t1=2.0"])
+    e = wall(tool + ["estimate", str(robot_file), "--displacement", "t1=-0.005", "--tension",
                      "t1=2.1", "--unknown", "0.25,0,0,-1"])
     print(f"start-up: bare import jax + tiny jit {bare:.2f} s; solve {s:.2f} s (+{s - bare:.2f}); "
           f"estimate {e:.2f} s (+{e - bare:.2f})")

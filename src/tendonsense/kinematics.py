@@ -78,13 +78,17 @@ def configuration(values: Values, q, *points: PointSet):
     poses relative to the base, ``S_i = Σ_{j≥i} Ad*_{G_j⁻¹} w_j`` (a reverse cumulative sum)
     and ``Q = Σ_i (dexp_{Ω_i} ∂Ω_i/∂q)ᵀ Ad_{G_i}ᵀ S_{i+1}`` (eq. 6 transposed); every product
     is a matrix-vector product, so that its exact forward-mode Jacobian is cheap. The grid
-    intervals and the points' partial steps are evaluated as one batch."""
+    intervals and the points' partial steps go through the exponentials as one batch."""
     n = values.h.shape[0]
     sizes = [p.h.shape[0] for p in points]
-    h, Phi1, Phi2 = (jnp.concatenate([getattr(values, f), *(getattr(p, f) for p in points)])
-                     for f in ("h", "Phi1", "Phi2"))
+    grid_steps = (values.h, values.Phi1, values.Phi2)
+    # the points' steps apart: at a traced X they must not make the grid's basis a variable
+    point_steps = tuple(jnp.concatenate([getattr(p, f) for p in points])
+                        for f in ("h", "Phi1", "Phi2")) if points else None
     starts = jnp.concatenate([jnp.zeros(0, int), *(p.start for p in points)])
-    Omega = omega(q, h, Phi1, Phi2)
+    Omega = omega(q, *grid_steps)
+    if points:
+        Omega = jnp.concatenate([Omega, omega(q, *point_steps)])
     G, at_points = _products(Omega, starts, n)
     grid = values.base @ G
     at_points = values.base @ at_points
@@ -97,7 +101,8 @@ def configuration(values: Values, q, *points: PointSet):
         S = jnp.cumsum(lie.coAd_apply(G, w)[::-1], axis=0)[::-1]
         u = lie.dexp_apply(Omega, jnp.concatenate([lie.Ad_T_apply(G[:-1], S[1:]), w_p]),
                            transpose=True)
-        return _omega_pullback(q, h, Phi1, Phi2, u) + _contract(c_nu, values.stretch_ends)
+        Q = _omega_pullback(q, *grid_steps, u[:n]) + _contract(c_nu, values.stretch_ends)
+        return Q + _omega_pullback(q, *point_steps, u[n:]) if points else Q
 
     return (grid, end_stretches(values, q), *(jnp.split(at_points, cut) if points else ())), pull
 
