@@ -6,7 +6,9 @@ continuous routing, the independent BVP, and the cost against the paper's protot
 The robot is examples/spacer_disk_robot.toml (Till & Rucker's tendon robot: steel backbone,
 four tendons 15.06 mm off the centre line, routed continuously), 15 N on t1. Warm solves are
 timed interleaved with the prototype's (2 N on t1), medians; cold start-up is a new process
-running ``tendonsense solve`` with an empty compilation cache.
+running ``tendonsense solve`` with an empty compilation cache. The example's tendons have no
+friction, as the peer's; the same robot with friction is timed too (its turning angle and
+the friction's derivatives are computed only then).
 """
 
 from __future__ import annotations
@@ -69,7 +71,9 @@ def main():
           f" µm from the BVP")
 
     cases = (("spacer-disk robot, 15 N", peer, {"t1": 15.0}),
-             ("paper prototype, 2 N", proto, {"t1": 2.0}))
+             ("paper prototype, 2 N", proto, {"t1": 2.0}),
+             ("spacer-disk robot with friction μ = 0.25, 15 N", with_tendons(peer, friction=0.25),
+              {"t1": 15.0}))
     for _, r, T in cases:
         solve(r, T)
     times = {name: [] for name, _, _ in cases}

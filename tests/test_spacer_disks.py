@@ -121,6 +121,13 @@ def test_continuous_tendons_in_the_inverse_problems(peer):
         q, mu, m.values.continuous, m.values.h)[0].T, argnums=(0, 1))(q, mu)
     for a, b in zip(exact, plain):
         np.testing.assert_allclose(a, b, atol=1e-12 * np.abs(b).max())
+    # without friction the turning angle is skipped: the same derivative in q
+    assert not np.any(model.values.friction)
+    exact = jax.jacfwd(lambda q: tendons.continuous_actuation(
+        model.structure, model.values, q, model.values.friction))(q)
+    plain = jax.jacfwd(lambda q: tendons._continuous(
+        q, model.values.friction, model.values.continuous, model.values.h)[0].T)(q)
+    np.testing.assert_allclose(exact, plain, atol=1e-12 * np.abs(plain).max())
 
     f = (0.0, 0.3, -0.5)
     truth = solve(rough, {"t1": 15.0, "t2": 4.0}, [(0.5, f)])

@@ -70,7 +70,7 @@ class FirstCallLocked:
 
     def __init__(self, fn):
         self.fn = fn
-        self.seen: set[str] = set()
+        self.seen: set[tuple] = set()
 
     def __call__(self, *args):
         signature = _signature(args)
@@ -88,7 +88,7 @@ class Program:
     def __init__(self, fn, name: str, key):
         self.fn, self.name, self.key = fn, name, repr(key)
         self.jitted = jax.jit(fn)
-        self.loaded: dict[str, object] = {}
+        self.loaded: dict[tuple, object] = {}
 
     def __call__(self, *args):
         signature = _signature(args)
@@ -103,11 +103,13 @@ class Program:
                     return out
         return call(*args)
 
-    def _load(self, signature: str, args):
+    def _load(self, signature: tuple, args):
         root = cache_dir()
         if root is None or not _register():
             return self.jitted
-        digest = hashlib.sha256(f"{self.name}|{self.key}|{signature}|{_source_hash()}"
+        tree, shapes = signature
+        described = ",".join(f"{shape}:{dtype}" for shape, dtype in shapes)
+        digest = hashlib.sha256(f"{self.name}|{self.key}|{tree}|{described}|{_source_hash()}"
                                 .encode()).hexdigest()[:32]
         path = root / "programs" / f"{self.name}-{digest}.bin"
         try:
@@ -125,11 +127,11 @@ class Program:
         return jax.jit(exp.call)
 
 
-def _signature(args) -> str:
+def _signature(args) -> tuple:
+    """The tree structure and every leaf's shape and dtype (hashable; checked on every call)."""
     leaves, tree = jax.tree_util.tree_flatten(args)
-    shapes = ",".join(f"{np.shape(a)}:{a.dtype if hasattr(a, 'dtype') else np.result_type(a)}"
-                      for a in leaves)
-    return f"{tree}|{shapes}"
+    return tree, tuple((np.shape(a), a.dtype if hasattr(a, "dtype") else np.result_type(a))
+                       for a in leaves)
 
 
 def _write_atomic(path: Path, data: bytes):

@@ -57,13 +57,13 @@ def continuous_actuation(structure: Structure, values: Values, q, friction):
 def _continuous_B(q, mu, ct, h):
     """(k, nq) unit-tension generalized forces; the geometry ``ct``, ``h`` is not
     differentiated."""
-    return _continuous(q, mu, ct, h)[0]
+    return _continuous(q, mu, ct, h, with_mu=False)[0]
 
 
 def _continuous_B_jvp(primals, tangents):
     q, mu, ct, h = primals
     dq, dmu = tangents[:2]
-    B, J_q, J_mu = _continuous(q, mu, ct, h)
+    B, J_q, J_mu = _continuous(q, mu, ct, h, with_mu=not isinstance(dmu, SymbolicZero))
     dB = jnp.zeros_like(B)  # a solve moves q alone: ∂B/∂μ is not even computed
     if not isinstance(dq, SymbolicZero):
         dB = dB + J_q @ dq
@@ -103,39 +103,55 @@ def _unit_angle(a, b):
     return _angle(ua, ub), -to_b / (la * sin), -to_a / (lb * sin)
 
 
-def _continuous(q, mu, ct, h):
+def _continuous(q, mu, ct, h, with_mu=True):
     """B (k, nq) and its exact derivatives ``∂B/∂q`` (k, nq, nq) and ``∂B/∂μ`` (k, nq): the
     angle θ is a sum of turning rates, entry and kink angles, each a function of a few local
-    path quantities linear in q, differentiated locally and carried to q by those maps."""
+    path quantities linear in q, differentiated locally and carried to q by those maps.
+    Without ``with_mu`` θ is only computed if some μ > 0 (no friction: nothing fades)."""
     w = ct.A @ q + ct.c  # (k, n_int, m, 3)
     size = jnp.sqrt(jnp.sum(w * w, axis=-1, keepdims=True))  # ≈ 1 + ε: never 0
     unit = w / size
-    rate, g_w, g_dw, g_om = _rate(w, ct.dA @ q, ct.Omega @ q)  # (k, n_int, m), (…, 3) each
-    d_rate = (jnp.einsum("kima,kimaq->kimq", g_w, ct.A)
-              + jnp.einsum("kima,kimaq->kimq", g_dw, ct.dA)
-              + jnp.einsum("kima,imaq->kimq", g_om, ct.Omega))
-    ends = ct.A_ends @ q + ct.c_ends  # (k, n_int, 2, 3)
-    # the entry from the actuator (along x) at [:, 0, 0], the kinks where intervals meet
-    first = jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0]), ends[:, :1, 1].shape)
-    angles, g_before, g_after = _unit_angle(
-        jnp.concatenate([first, ends[:, :-1, 1]], 1), ends[:, :, 0])
-    g_ends = jnp.stack([g_after, jnp.concatenate([g_before[:, 1:], 0 * first], 1)], 2)
-    d_ends = jnp.einsum("kija,kijaq->kijq", g_ends, ct.A_ends)
-    d_angles = d_ends[:, :, 0] + jnp.concatenate([0 * d_ends[:, :1, 1], d_ends[:, :-1, 1]], 1)
-    per_interval = jnp.sum(ct.weights * rate, axis=-1)
-    d_per_interval = jnp.einsum("im,kimq->kiq", ct.weights, d_rate)
-    before = jnp.concatenate([0 * per_interval[:, :1], per_interval[:, :-1]], 1)
-    d_before = jnp.concatenate([0 * d_per_interval[:, :1], d_per_interval[:, :-1]], 1)
-    steps, d_steps = jnp.cumsum(angles + before, 1), jnp.cumsum(d_angles + d_before, 1)
-    theta = steps[..., None] + h[:, None] * (rate @ ct.cumulative.T)
-    d_theta = d_steps[:, :, None] + h[:, None, None] * jnp.einsum("mj,kijq->kimq",
-                                                                   ct.cumulative, d_rate)
-    fade = ct.weights * jnp.exp(-mu[:, None, None] * theta)  # (k, n_int, m), with the weights
+
     pull = jnp.einsum("kima,kimaq->kimq", unit, ct.A)  # ∂|w|/∂q
+
+    def turned():  # θ (k, n_int, m), its fade with the weights and the friction part of J_q
+        rate, g_w, g_dw, g_om = _rate(w, ct.dA @ q, ct.Omega @ q)  # (k, n_int, m), (…, 3)
+        d_rate = (jnp.einsum("kima,kimaq->kimq", g_w, ct.A)
+                  + jnp.einsum("kima,kimaq->kimq", g_dw, ct.dA)
+                  + jnp.einsum("kima,imaq->kimq", g_om, ct.Omega))
+        ends = ct.A_ends @ q + ct.c_ends  # (k, n_int, 2, 3)
+        # the entry from the actuator (along x) at [:, 0, 0], the kinks where intervals meet
+        first = jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0]), ends[:, :1, 1].shape)
+        angles, g_before, g_after = _unit_angle(
+            jnp.concatenate([first, ends[:, :-1, 1]], 1), ends[:, :, 0])
+        g_ends = jnp.stack([g_after, jnp.concatenate([g_before[:, 1:], 0 * first], 1)], 2)
+        d_ends = jnp.einsum("kija,kijaq->kijq", g_ends, ct.A_ends)
+        d_angles = d_ends[:, :, 0] + jnp.concatenate([0 * d_ends[:, :1, 1], d_ends[:, :-1, 1]],
+                                                     1)
+        per_interval = jnp.sum(ct.weights * rate, axis=-1)
+        d_per_interval = jnp.einsum("im,kimq->kiq", ct.weights, d_rate)
+        before = jnp.concatenate([0 * per_interval[:, :1], per_interval[:, :-1]], 1)
+        d_before = jnp.concatenate([0 * d_per_interval[:, :1], d_per_interval[:, :-1]], 1)
+        steps, d_steps = jnp.cumsum(angles + before, 1), jnp.cumsum(d_angles + d_before, 1)
+        theta = steps[..., None] + h[:, None] * (rate @ ct.cumulative.T)
+        d_theta = d_steps[:, :, None] + h[:, None, None] * jnp.einsum(
+            "mj,kijq->kimq", ct.cumulative, d_rate)
+        fade = ct.weights * jnp.exp(-mu[:, None, None] * theta)
+        return theta, fade, jnp.einsum("kim,kimq,kimr->kqr", mu[:, None, None] * fade, pull,
+                                       d_theta)
+
+    def frictionless():  # nothing fades
+        k, nq = pull.shape[0], q.shape[0]
+        return (jnp.zeros(w.shape[:-1], w.dtype), jnp.broadcast_to(ct.weights, w.shape[:-1]),
+                jnp.zeros((k, nq, nq), w.dtype))
+
+    if with_mu:
+        theta, fade, friction = turned()
+    else:
+        theta, fade, friction = jax.lax.cond(jnp.any(mu != 0), turned, frictionless)
     B = -jnp.einsum("kim,kimq->kq", fade, pull)
     projected = (ct.A - unit[..., None] * pull[..., None, :]) / size[..., None]  # ∂ŵ/∂q
-    J_q = -(jnp.einsum("kim,kimaq,kimar->kqr", fade, ct.A, projected)
-            - jnp.einsum("kim,kimq,kimr->kqr", mu[:, None, None] * fade, pull, d_theta))
+    J_q = friction - jnp.einsum("kim,kimaq,kimar->kqr", fade, ct.A, projected)
     J_mu = jnp.einsum("kim,kimq->kq", fade * theta, pull)
     return B, J_q, J_mu
 
