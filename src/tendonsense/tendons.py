@@ -107,11 +107,11 @@ def _continuous(q, mu, ct, h, with_mu=True):
     """B (k, nq) and its exact derivatives ``∂B/∂q`` (k, nq, nq) and ``∂B/∂μ`` (k, nq): the
     angle θ is a sum of turning rates, entry and kink angles, each a function of a few local
     path quantities linear in q, differentiated locally and carried to q by those maps.
-    Without ``with_mu`` θ is only computed if some μ > 0 (no friction: nothing fades)."""
+    Without ``with_mu`` θ is only computed if some μ > 0 (no friction: nothing fades), and
+    ``∂B/∂μ`` is then not valid."""
     w = ct.A @ q + ct.c  # (k, n_int, m, 3)
     size = jnp.sqrt(jnp.sum(w * w, axis=-1, keepdims=True))  # ≈ 1 + ε: never 0
     unit = w / size
-
     pull = jnp.einsum("kima,kimaq->kimq", unit, ct.A)  # ∂|w|/∂q
 
     def turned():  # θ (k, n_int, m), its fade with the weights and the friction part of J_q
