@@ -70,9 +70,9 @@ def cli_log(n_rows, F, T, Y, env):
         path = Path(tmp) / "in.csv"
         with open(path, "w", newline="") as fh:
             w = csv.writer(fh)
-            w.writerow(["time", "tension_t1", "displacement_t1"])
+            w.writerow(["time", "tension_t1", "tension_t2", "tension_t3", "displacement_t1"])
             for k in range(n_rows):
-                w.writerow([k * 0.01, T[k], Y[k]])
+                w.writerow([k * 0.01, T[k], 0, 0, Y[k]])
         t0 = time.perf_counter()
         subprocess.run([sys.executable, "-m", "tendonsense.cli", "estimate", str(ROBOT),
                         "--readings", str(path), "--unknown", "0.25,0,0,-1", "-o",

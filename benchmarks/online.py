@@ -118,13 +118,13 @@ def main(argv=None):
                              str(robot_file), "--readings", "-", "--unknown", "0.25,0,0,-1"],
                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                             text=True, bufsize=1)
-    proc.stdin.write("time,tension_t1,displacement_t1\n")
+    proc.stdin.write("time,tension_t1,tension_t2,tension_t3,displacement_t1\n")
     proc.stdin.flush()
     proc.stdout.readline()
     trip = []
     for k in range(min(n, 2000)):
         t0 = time.perf_counter()
-        proc.stdin.write(f"{k},{float(T[k, 0])!r},{float(Y['t1'][k])!r}\n")
+        proc.stdin.write(f"{k},{float(T[k, 0])!r},0,0,{float(Y['t1'][k])!r}\n")
         proc.stdin.flush()
         proc.stdout.readline()
         trip.append(time.perf_counter() - t0)

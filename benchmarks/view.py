@@ -86,7 +86,7 @@ def round_trips(rows, view: bool, watch: str | None = "chromium"):
                             stderr=subprocess.PIPE, text=True, bufsize=1, cwd=ROOT)
     err = []
     threading.Thread(target=lambda: err.extend(proc.stderr), daemon=True).start()
-    proc.stdin.write("time,tension_t1,displacement_t1\n")
+    proc.stdin.write("time,tension_t1,tension_t2,tension_t3,displacement_t1\n")
     proc.stdin.flush()
     proc.stdout.readline()
     driver = None
@@ -98,7 +98,7 @@ def round_trips(rows, view: bool, watch: str | None = "chromium"):
     t_start = time.perf_counter()
     for k, (T, y) in enumerate(rows):
         t0 = time.perf_counter()
-        proc.stdin.write(f"{t0 - t_start!r},{T!r},{y!r}\n")
+        proc.stdin.write(f"{t0 - t_start!r},{T!r},0,0,{y!r}\n")
         proc.stdin.flush()
         proc.stdout.readline()
         trip.append(time.perf_counter() - t0)

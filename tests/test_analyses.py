@@ -76,9 +76,10 @@ def test_comparison_and_shape_figures(prototype, tmp_path):
     assert all(r.converged for rs in table.values() for r in rs)
     assert is_png(plotting.comparison(table, tmp_path / "d.png"))
     est = estimate(prototype, {"t1": -0.005}, {"t1": 2.1}, [PointForceUnknown(0.25, (0, 0, -1))])
-    path = plotting.shape(est, tmp_path / "e.png", 0.25,
-                          [(0.25, est.magnitudes[0] * np.array([0, 0, -1.0]))],
-                          measured_markers={"tip": est.markers["tip"] + 0.002})
+    path = plotting.shape(
+        est, tmp_path / "e.png", prototype,
+        estimated=[(0.25, est.magnitudes[0] * np.array([0, 0, -1.0]), est.sigma[0])],
+        measured_markers={"tip": est.markers["tip"] + 0.002})
     assert is_png(path)
 
 

@@ -121,14 +121,14 @@ def cli(*args):
 
 
 def make_log(prototype, path, forces, bad_row=None):
-    header = ["time", "tension_t1", "displacement_t1", "marker_tip_x", "marker_tip_y",
-              "marker_tip_z"]
+    header = ["time", "tension_t1", "tension_t2", "tension_t3", "displacement_t1",
+              "marker_tip_x", "marker_tip_y", "marker_tip_z"]
     rows = []
     for i, f in enumerate(forces):
         r = solve(prototype, {"t1": 2.0}, [(0.25, (0, 0, -f))])
-        rows.append([0.1 * i, 2.0, r.displacements["t1"], *r.markers["tip"]])
+        rows.append([0.1 * i, 2.0, 0, 0, r.displacements["t1"], *r.markers["tip"]])
     if bad_row is not None:
-        rows[bad_row][2] = ""
+        rows[bad_row][4] = ""
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(header)

@@ -59,9 +59,9 @@ def test_cli_streams_stdin_to_stdout(readings):
     F, T, y = readings
     buf = io.StringIO()
     w = csv.writer(buf)
-    w.writerow(["time", "tension_t1", "displacement_t1"])
+    w.writerow(["time", "tension_t1", "tension_t2", "tension_t3", "displacement_t1"])
     for k in range(len(F)):
-        w.writerow([0.01 * k, T[k], "oops" if k == 4 else y[k]])
+        w.writerow([0.01 * k, T[k], 0, 0, "oops" if k == 4 else y[k]])
     p = stream(["--unknown", "0.25,0,0,-1"], buf.getvalue())
     assert p.returncode == 3, p.stderr  # row 5 was bad
     rows = list(csv.DictReader(io.StringIO(p.stdout)))
@@ -81,11 +81,11 @@ def test_cli_stream_flushes_each_row_before_the_next_arrives(readings):
                              str(PROTOTYPE), "--readings", "-", "--unknown", "0.25,0,0,-1"],
                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
     try:
-        proc.stdin.write("time,tension_t1,displacement_t1\n")
+        proc.stdin.write("time,tension_t1,tension_t2,tension_t3,displacement_t1\n")
         proc.stdin.flush()
         assert proc.stdout.readline().startswith("row,time,magnitude_1")
         for k in range(3):
-            proc.stdin.write(f"{k},{float(T[k])!r},{float(y[k])!r}\n")
+            proc.stdin.write(f"{k},{float(T[k])!r},0,0,{float(y[k])!r}\n")
             proc.stdin.flush()
             row = proc.stdout.readline().split(",")
             assert row[0] == str(k + 1) and float(row[2]) == pytest.approx(F[k], rel=1e-6)

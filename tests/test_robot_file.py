@@ -1,11 +1,15 @@
 """Robot-file loading and validation (SPEC §3)."""
 
+import dataclasses
+import tomllib
+
 import numpy as np
 import pytest
 
 from conftest import PROTOTYPE, ROOT
 from tendonsense.forward import solve
-from tendonsense.robot import Mass, RobotFileError, load_robot, parse_robot, robot_to_toml
+from tendonsense.robot import (Mass, RobotFileError, fitted_toml, load_robot, parse_robot,
+                               robot_to_toml)
 
 TEXT = PROTOTYPE.read_text()
 
@@ -151,3 +155,135 @@ def test_lumped_masses_are_their_weights_as_point_forces(prototype, tmp_path):
     assert np.linalg.norm(sag["ahead"] - sag["at 0.17"]) < 0.05 * np.linalg.norm(sag["at 0.17"])
     assert np.linalg.norm(sag["ahead"]) < np.linalg.norm(sag["at 0.17"])
     assert np.linalg.norm(sag["ahead"] - sag["at 0.15"]) > 0.1 * np.linalg.norm(sag["at 0.15"])
+
+
+# ----------------------------------------------------------------------------- fitted files
+
+GUESS = ROOT / "examples" / "tutorial" / "robot_guess.toml"
+HEADER = ["fitted by tendonsense identify 0.1.0 on 2026-12-01 20:40 UTC",
+          "from examples/tutorial/snapshots.csv (12 snapshots); robot file "
+          "examples/tutorial/robot_guess.toml",
+          "parameters fitted: young_modulus = 1.02e6 Pa, density = 1333 kg/m³",
+          "marker RMSE 0.41 mm (before the fit 6.2 mm)"]
+HEADER_LINES = ["# " + h for h in HEADER] + [""]
+
+
+def fitted_from(robot, E=1023456.7, rho=1333.25, mu=None):
+    """A "fitted" robot: ``robot`` with other E, ρ and the per-tendon μ of ``mu``."""
+    mu = mu or {}
+    tendons = tuple(dataclasses.replace(t, friction=mu.get(t.name, t.friction))
+                    for t in robot.tendons)
+    rod = dataclasses.replace(robot.rod, young_modulus=E, density=rho)
+    return dataclasses.replace(robot, rod=rod, tendons=tendons)
+
+
+def body(out):
+    """The lines after the header and its blank line."""
+    lines = out.split("\n")
+    assert lines[:len(HEADER_LINES)] == HEADER_LINES
+    return lines[len(HEADER_LINES):]
+
+
+def test_fitted_file_keeps_comments_blank_lines_and_other_keys():
+    text = GUESS.read_text()
+    fitted = fitted_from(load_robot(GUESS), mu={"t2": 0.35})
+    out = body(fitted_toml(text, fitted, HEADER))
+    original = text.split("\n")
+    assert len(out) == len(original)  # nothing added, nothing lost, same order
+    changed = [i for i, (a, b) in enumerate(zip(original, out)) if a != b]
+    assert [original[i].split("=")[0].strip() for i in changed] == [
+        "young_modulus", "density", "friction"]
+    assert out[changed[2] - 3] == 'name = "t2"'  # the friction of t2, not of t1 or t3
+    for a, b in zip(original, out):
+        if not a.strip() or a.startswith("#"):
+            assert a == b
+    assert out[:2] == original[:2] and original[0].startswith("# The tutorial robot")
+
+
+def test_fitted_file_keeps_the_trailing_comment_of_a_rewritten_line():
+    text = PROTOTYPE.read_text().replace("density = 1340.0\n", "density = 1340.0  # kg/m^3\n")
+    out = fitted_toml(text, fitted_from(load_robot(PROTOTYPE)), HEADER)
+    assert "\ndensity = 1333.25  # kg/m^3\n" in out
+    # aligned comments stay aligned: the tutorial's two comments keep their column
+    out = fitted_toml(GUESS.read_text(), fitted_from(load_robot(GUESS)), HEADER)
+    assert "\nyoung_modulus = 1023456.7       # a first guess, Pa\n" in out
+    assert "\ndensity = 1333.25               # a first guess, kg/m^3\n" in out
+
+
+@pytest.mark.parametrize("path", [GUESS, PROTOTYPE])
+def test_fitted_file_round_trips_through_load_robot(tmp_path, path):
+    robot = load_robot(path)
+    fitted = fitted_from(robot, E=987654.321, rho=1111.125, mu={"t1": 0.125, "t3": 0.6})
+    assert fitted != robot
+    p = tmp_path / path.name  # the same stem: the same default name
+    p.write_text(fitted_toml(path.read_text(), fitted, HEADER))
+    again = load_robot(p)
+    assert again.rod.young_modulus == 987654.321 and again.rod.density == 1111.125
+    assert {t.name: t.friction for t in again.tendons} == {
+        t.name: t.friction for t in fitted.tendons}
+    assert again == fitted  # and every other value as loaded from the original
+
+
+def test_fitted_file_adds_a_missing_friction_to_its_tendon(tmp_path):
+    text = PROTOTYPE.read_text()
+    block = 'name = "t2"\noffset_base = [-0.01212435565, -0.007]\n' \
+            'offset_tip = [-0.005629165125, -0.00325]\nfriction = 0.4\ndisks = 9\n'
+    assert text.count(block) == 1
+    text = text.replace(block, block.replace("friction = 0.4\n", ""))
+    p = tmp_path / "paper_prototype.toml"
+    p.write_text(text)
+    robot = load_robot(p)
+    assert robot.tendons[1].friction == 0.0  # the default
+    out = fitted_toml(text, fitted_from(robot, mu={"t2": 0.25}), HEADER)
+    assert block.replace("friction = 0.4\ndisks = 9\n", "disks = 9\nfriction = 0.25\n") in out
+    assert out.count("friction = ") == 3
+    p.write_text(out)
+    assert [t.friction for t in load_robot(p).tendons] == [0.4, 0.25, 0.4]
+    # at the default it needs no line
+    assert fitted_toml(text, robot, HEADER).count("friction = ") == 2
+
+
+def test_fitted_file_adds_a_missing_rod_key_after_the_tables_last_key():
+    text = PROTOTYPE.read_text().replace("density = 1340.0\n", "")
+    robot = load_robot(PROTOTYPE)
+    out = fitted_toml(text, fitted_from(robot), HEADER)
+    assert "poisson_ratio = 0.5\ndensity = 1333.25\n\n[strain]" in out
+    assert tomllib.loads(out)["rod"]["density"] == 1333.25
+
+
+def test_a_second_fit_replaces_the_header():
+    robot = load_robot(GUESS)
+    first = fitted_toml(GUESS.read_text(), fitted_from(robot), HEADER)
+    header2 = ["fitted by tendonsense identify 0.1.0 on 2026-12-02 09:00 UTC", "second fit"]
+    second = fitted_toml(first, fitted_from(robot, E=2e6), header2)
+    assert second.count("fitted by tendonsense identify") == 1
+    assert second.startswith("# fitted by tendonsense identify 0.1.0 on 2026-12-02 09:00 UTC\n"
+                             "# second fit\n\n# The tutorial robot")
+    assert "young_modulus = 2000000.0       # a first guess, Pa" in second
+    # below the header: the first fit's file, but for E
+    assert [ln for ln in second.split("\n")[3:] if "young_modulus" not in ln] == [
+        ln for ln in first.split("\n")[5:] if "young_modulus" not in ln]
+
+
+def test_untouched_keys_are_byte_identical_and_spacing_is_tolerated(tmp_path):
+    text = (PROTOTYPE.read_text().replace("young_modulus = 1.0e6", "young_modulus=1e6")
+            .replace("density = 1340.0", "  density   =  1340   # kg/m^3"))
+    p = tmp_path / "paper_prototype.toml"
+    p.write_text(text)
+    robot = load_robot(p)
+    out = fitted_toml(text, fitted_from(robot, E=1.5e6, rho=1250.5), HEADER)
+    assert "\nyoung_modulus=1500000.0\n" in out
+    assert "\n  density   =  1250.5  # kg/m^3\n" in out  # the comment at its column
+    assert out.endswith(text.split("density   =  1340   # kg/m^3\n")[1])
+    # a value the fit left as it was keeps its spelling
+    same = fitted_toml(text, robot, HEADER)
+    assert same == "\n".join(HEADER_LINES) + "\n" + text
+    p.write_text(out)
+    assert load_robot(p) == fitted_from(robot, E=1.5e6, rho=1250.5)
+
+
+def test_fitted_file_needs_the_files_tendons():
+    robot = load_robot(PROTOTYPE)
+    other = dataclasses.replace(robot, tendons=robot.tendons[:2])
+    with pytest.raises(RobotFileError, match="tendons"):
+        fitted_toml(PROTOTYPE.read_text(), other, HEADER)

@@ -71,12 +71,13 @@ EXAMPLES = sorted((Path(__file__).resolve().parents[1] / "examples").glob("*.tom
 
 @pytest.mark.parametrize("path", EXAMPLES, ids=[p.stem for p in EXAMPLES])
 def test_every_example_keeps_its_solver_on_disk(path, tmp_path, monkeypatch):
-    """The solver of every example robot (and of the elements basis) is serialised into the
-    cache: one that is not would be traced and compiled again in every new process."""
+    """The solver of every example robot (and of the elements basis) is compiled once and its
+    executable kept in the cache: one that is not would be traced and compiled again in every
+    new process."""
     monkeypatch.setenv("TENDONSENSE_CACHE_DIR", str(tmp_path))
     kept = []
 
-    def load_only(program, *args):  # export and write, without compiling
+    def load_only(program, *args):  # compile and keep, without running
         kept.append(program._load(compiled._signature(args), args) is not program.jitted)
         raise _Stop
 
@@ -89,7 +90,7 @@ def test_every_example_keeps_its_solver_on_disk(path, tmp_path, monkeypatch):
             solve(r, {robot.tendon_names[0]: 1.0})
     statics.newton_solver.cache_clear()
     assert kept == [True, True]
-    assert len(list((tmp_path / "programs").glob("newton-*.bin"))) == 2
+    assert len(list((tmp_path / "programs").glob("newton-*.exe"))) == 2
 
 
 def test_variant_matches_a_freshly_built_model(prototype):

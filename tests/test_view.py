@@ -200,24 +200,25 @@ def test_estimate_view_follows_a_live_stream(driver):
     out = []
     threading.Thread(target=lambda: out.extend(p.stdout), daemon=True).start()
     try:
-        p.stdin.write("time,tension_t1,displacement_t1\n0.0,1.0,-0.001\n")
+        p.stdin.write("time,tension_t1,tension_t2,tension_t3,displacement_t1\n"
+                      "0.0,1.0,0,0,-0.001\n")
         p.stdin.flush()
         wait_for(lambda: len(out) >= 2)
         open_page(driver, port)
         wait_for(lambda: re.search(r"F1 = \d+\.\d+ ± \d+\.\d+ N at X = 250\.0 mm",
                                    text(driver)))
         before = backbone_pixels(driver)
-        p.stdin.write("0.1,3.0,-0.006\n")
+        p.stdin.write("0.1,3.0,0,0,-0.006\n")
         p.stdin.flush()
         wait_for(lambda: len(out) >= 3)
         wait_for(lambda: "t1 3.000 N" in text(driver))
         wait_for(lambda: (backbone_pixels(driver) != before).sum() > 300)
         assert "samples/s" in text(driver)
         keep(driver, "view_estimate.png")
-        p.stdin.write("0.2,-1.0,-0.006\n")  # a tendon cannot push: refused, and shown so
+        p.stdin.write("0.2,-1.0,0,0,-0.006\n")  # a tendon cannot push: refused, and shown so
         p.stdin.flush()
         wait_for(lambda: "SAMPLE REFUSED" in text(driver) and "negative" in text(driver))
-        p.stdin.write("0.3,2.0,-0.004\n")  # the next one is drawn, the refusal still marked
+        p.stdin.write("0.3,2.0,0,0,-0.004\n")  # the next one is drawn, the refusal still marked
         p.stdin.flush()
         wait_for(lambda: "t1 2.000 N" in text(driver))
         assert re.search(r"s ago a sample was refused or did not converge: .*negative",

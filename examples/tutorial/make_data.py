@@ -52,9 +52,9 @@ y = out.displacements["t1"] + rng.normal(0, 1e-4, n)
 T = T1 * (1 + rng.normal(0, 0.025 / 3, n))
 with open("examples/tutorial/readings.csv", "w", newline="") as fh:
     w = csv.writer(fh)
-    w.writerow(["time", "tension_t1", "displacement_t1"])
-    for k in range(n):
-        w.writerow([f"{time[k]:.2f}", f"{T[k]:.5f}", f"{y[k]:.6f}"])
+    w.writerow(["time", "tension_t1", "tension_t2", "tension_t3", "displacement_t1"])
+    for k in range(n):  # t2 and t3 slack: their tensions read 0
+        w.writerow([f"{time[k]:.2f}", f"{T[k]:.5f}", "0", "0", f"{y[k]:.6f}"])
 with open("examples/tutorial/applied_weight.csv", "w", newline="") as fh:
     w = csv.writer(fh)
     w.writerow(["time", "applied_N"])

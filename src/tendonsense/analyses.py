@@ -19,7 +19,7 @@ from .forward import forward_kinematics, solve
 from .robot import Robot
 from .model import Values
 
-GF = 9.80665e-3  # N per gram-force
+from .units import GF  # noqa: F401  (N per gram-force)
 
 #: the paper's figures (§IV)
 PAPER_SINGLE = {"length": (0.12, 0.17), "tension": (0.08, 0.10), "friction": (0.08, 0.10)}

@@ -1,7 +1,10 @@
 """The ``tendonsense`` command line, a thin layer over the Python API.
 
-Exit status: 0 success, 1 bad input (one line on stderr, nothing on stdout), 2 bad usage,
-3 a solve that did not converge (its result is still printed, marked ``converged: false``).
+Every argument, the robot file, input files and output paths are checked before JAX starts
+(:mod:`tendonsense.inputs`): a slip is answered at once. Exit status: 0 success, 1 bad input
+(one line on stderr, nothing on stdout, no file written), 2 bad usage, 3 a solve that did not
+converge (no shape printed or written unless asked; ``--json`` carries ``converged: false``
+and the reason in ``note``).
 """
 
 from __future__ import annotations
@@ -10,13 +13,20 @@ import argparse
 import csv
 import io
 import json
+import os
 import sys
 import time
+from datetime import datetime, timezone
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
+from . import __version__, inputs
+from .inputs import GravityUnknown, Noise, PointForceUnknown
+from .readings import ReadingsError
 from .robot import RobotFileError, load_robot
+from .units import GF, newtons
 
 DESCRIPTION = """\
 Shape and external forces of a tendon-driven soft robot from its tendon readings, with a
@@ -24,8 +34,17 @@ Cosserat-rod model. Lengths in metres, forces in newtons, positions in the globa
 Exit status: 0 success, 1 bad input, 2 bad usage, 3 a solve that did not converge.
 Run 'tendonsense COMMAND --help' for the options of one command."""
 
-#: 1 gram-force in newtons
-GF = 9.80665e-3
+#: the paper's robots and experiments, shipped with the package (the analyses' defaults)
+DATA = resources.files("tendonsense") / "data"
+
+UNKNOWN_HELP = ("an unknown load: 'X,DX,DY,DZ' a force of unknown size along the global "
+                "direction (DX, DY, DZ) acting at X m from the base; X may be '?' (somewhere "
+                "on the rod) or 'A:B' (somewhere in [A, B] m), which estimates where it acts "
+                "too and takes one more measured tendon; or 'gravity' for an unknown scale of "
+                "the robot's weight; repeatable")
+
+#: options whose values may start with a minus sign ("--point-force -0.1,0,0,-1")
+VALUE_OPTIONS = ("--point-force", "--unknown", "--tension", "--displacement")
 
 
 class UsageError(Exception):
@@ -59,159 +78,7 @@ def _numbers(n: int, what: str):
     return parse
 
 
-def _common(p: argparse.ArgumentParser):
-    p.add_argument("robot", help="the robot file (TOML)")
-    p.add_argument("--point-force", action="append", default=[], metavar="X,FX,FY,FZ",
-                   type=_numbers(4, "X,FX,FY,FZ"),
-                   help="a known force FX, FY, FZ (N, global frame) acting at the distance X "
-                        "(m) from the base along the rod; repeatable")
-    p.add_argument("--json", action="store_true",
-                   help="print the result as one JSON object instead of text")
-    p.add_argument("--plot", metavar="SHAPE.png",
-                   help="also draw the rod's 3-D shape, its markers and forces into a PNG file "
-                        "(and, for a force of unknown location, the misfit over X into "
-                        "SHAPE_location.png)")
-
-
-def _analysis(sub, name, help_text, robot_default):
-    p = sub.add_parser(name, help=help_text)
-    p.add_argument("--robot", default=robot_default,
-                   help=f"the robot file (default: {robot_default})")
-    p.add_argument("-o", "--out-dir", default="tendonsense_results",
-                   help="folder for the table (CSV and JSON) and the figure (PNG) "
-                        "(default: tendonsense_results)")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
-    p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
-    return p
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="tendonsense", description=DESCRIPTION,
-                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-
-    def command(name, summary, description):
-        return sub.add_parser(name, help=summary, description=description)
-
-    p = command("solve", "shape from tendon tensions (forward statics)",
-                "Compute the rod's shape, tendon length changes and marker positions from the "
-                "tendon tensions and any known forces.")
-    _common(p)
-    p.add_argument("--tension", action="append", default=[], type=_assignment,
-                   metavar="NAME=N",
-                   help="a tendon's tension in newtons; repeatable; tendons not named are slack")
-
-    p = command("fk", "shape and tensions from tendon length changes (forward kinematics)",
-                "Compute the rod's shape and the tensions needed for the given tendon length "
-                "changes (negative = pulled in).")
-    _common(p)
-    p.add_argument("--displacement", action="append", default=[], type=_assignment,
-                   metavar="NAME=M",
-                   help="a tendon's length change in metres (negative = pulled in); repeatable")
-    p.add_argument("--tension", action="append", default=[], type=_assignment,
-                   metavar="NAME=N",
-                   help="the tension (N) of a tendon whose length change is not given")
-
-    p = command("estimate", "shape and unknown forces from tendon readings (estimation)",
-                "Estimate the rod's shape and the size of unknown loads from measured tendon "
-                "length changes and tensions: one reading given on the command line, or every "
-                "row of a readings log (--readings). Each unknown needs one measured tendon; "
-                "with more measured tendons than unknowns the estimate is a least-squares fit. "
-                "Every magnitude comes with a 1-sigma band for sensor noise.")
-    _common(p)
-    p.add_argument("--displacement", action="append", default=[], type=_assignment,
-                   metavar="NAME=M",
-                   help="a measured tendon length change in metres (negative = pulled in)")
-    p.add_argument("--tension", action="append", default=[], type=_assignment,
-                   metavar="NAME=N", help="a measured tendon tension in newtons")
-    p.add_argument("--unknown", action="append", default=[], type=_unknown, required=True,
-                   metavar="X,DX,DY,DZ|gravity",
-                   help="an unknown load: a force of unknown size along the global direction "
-                        "(DX, DY, DZ) acting at the distance X (m) from the base, or 'gravity' "
-                        "for an unknown scale of the robot's weight; repeatable")
-    p.add_argument("--readings", metavar="READINGS.csv",
-                   help="estimate every row of a readings log (CSV); '-' reads the log live "
-                        "from standard input")
-    p.add_argument("-o", "--output", metavar="OUT.csv",
-                   help="with --readings: write the results to this CSV file once every row "
-                        "is done; without it, or with '-', each result row goes to standard "
-                        "output as soon as it is estimated")
-    p.add_argument("--length-noise", type=_positive, default=1e-4, metavar="M",
-                   help="standard deviation of the tendon length sensors in metres, for the "
-                        "uncertainty band (default 0.0001 m = 0.1 mm)")
-    p.add_argument("--tension-noise", type=_positive, default=0.025 / 3, metavar="FRACTION",
-                   help="standard deviation of the tension sensors as a fraction of the "
-                        "reading (default 0.00833, i.e. 2.5 %% / 3)")
-    p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
-    p.add_argument("--view", action="store_true",
-                   help="with --readings: show the estimates live in a 3-D view in the browser "
-                        "(needs the optional package viser); a file log is replayed at its "
-                        "time stamps")
-    _view_options(p)
-
-    p = command("view", "explore a robot in a live 3-D view in the browser",
-                "Serve an interactive view of the robot's forward statics: a slider per tendon "
-                "tension and one point force (X, direction, size); the shape, disks, tendons "
-                "and markers are redrawn as they change. Needs the optional package viser "
-                "(pip install 'tendonsense[view]'). Ctrl-C ends it.")
-    p.add_argument("robot", help="the robot file (TOML)")
-    _view_options(p)
-    p.add_argument("--max-tension", type=_positive, default=5.0, metavar="N",
-                   help="the tension sliders' range, N (default 5)")
-    p.add_argument("--max-force", type=_positive, default=1.0, metavar="N",
-                   help="the point force slider's range, N (default 1)")
-
-    p = command("identify", "fit stiffness, density or friction to measured poses (calibration)",
-                "Fit the Young's modulus, density and/or friction coefficients of the robot "
-                "file to static poses (snapshots): marker positions, the tendons' own length "
-                "readings (no camera needed), or both.")
-    p.add_argument("robot", help="the robot file (TOML); its values are the starting guess")
-    p.add_argument("--snapshots", required=True, metavar="SNAPSHOTS.csv",
-                   help="the measured poses: tensions, an optional known load, marker "
-                        "positions and/or tendon length changes, one row per pose")
-    p.add_argument("--param", action="append", metavar="NAME",
-                   help="a parameter to fit: young_modulus, density, friction (one μ for every "
-                        "tendon) or friction_<tendon>; repeatable (default: young_modulus and "
-                        "density)")
-    p.add_argument("--marker-noise", type=_positive, default=1e-3, metavar="M",
-                   help="standard deviation of a marker coordinate, m (default 0.001)")
-    p.add_argument("--length-noise", type=_positive, default=1e-4, metavar="M",
-                   help="standard deviation of a tendon length reading, m (default 0.0001)")
-    p.add_argument("--crossval", action="store_true",
-                   help="also refit without each snapshot and report how well it is predicted")
-    p.add_argument("--plot", metavar="FIGURE.png",
-                   help="write a figure of the per-snapshot errors (and the cross-validation)")
-    p.add_argument("-o", "--output", metavar="FITTED.toml",
-                   help="write a copy of the robot file with the fitted values")
-    p.add_argument("--json", action="store_true",
-                   help="print the result as one JSON object instead of text")
-
-    p = _analysis(sub, "sensitivity", "how errors in tendon length, tension and friction "
-                  "change the estimated force (the paper's Fig. 3a and 3b)",
-                  "examples/paper_simulation.toml")
-    p.add_argument("--points", type=int, default=9,
-                   help="tendon length changes per force in the one-tendon study (default 9)")
-    _analysis(sub, "resolution", "the smallest force change the tension sensors can resolve "
-              "(the paper's Section IV)", "examples/paper_simulation.toml")
-    p = _analysis(sub, "compare", "this model against the paper's simpler rod models on the "
-                  "paper's experiments (the paper's Fig. 6)", "examples/paper_prototype.toml")
-    p.add_argument("csv", nargs="?", default="examples/paper_experiments.csv",
-                   help="the experiments table (default: examples/paper_experiments.csv)")
-
-    p = command("experiments", "re-run the paper's experiments (its Tables II to IV)",
-                "Estimate every row of the paper's experiments and compare with the applied "
-                "loads and the paper's own estimates.")
-    p.add_argument("csv", nargs="?", default="examples/paper_experiments.csv",
-                   help="the experiments table (default: examples/paper_experiments.csv)")
-    p.add_argument("--robot", default="examples/paper_prototype.toml",
-                   help="the robot file (default: examples/paper_prototype.toml)")
-    p.add_argument("--json", action="store_true",
-                   help="print the result as one JSON object instead of text")
-    return parser
-
-
 def _unknown(text: str):
-    from .estimation import GravityUnknown, PointForceUnknown
     if text.strip().lower() == "gravity":
         return GravityUnknown()
     what = "X,DX,DY,DZ (X a number, '?' or A:B) or gravity"
@@ -233,41 +100,6 @@ def _unknown(text: str):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _view_options(p):
-    p.add_argument("--port", type=int, default=8080, metavar="N",
-                   help="the view's port (default 8080)")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="the address to serve the view on (default 127.0.0.1, this machine "
-                        "only); another address exposes it to the network")
-
-
-def _open_view(args, robot, title=None, pause=False):
-    from .view import ViewProcess, explore
-    if not 0 < args.port < 65536:
-        raise UsageError(f"tendonsense {args.command}: --port {args.port}: not a port number")
-    if args.host not in ("127.0.0.1", "localhost", "::1"):
-        print(f"tendonsense: warning: the view is served on {args.host}:{args.port}, visible "
-              f"to other machines on the network", file=sys.stderr)
-    if args.command == "view":
-        viewer = explore(robot, args.port, args.host, args.max_tension, args.max_force)
-    else:
-        viewer = ViewProcess(robot, args.port, args.host, title, pause)
-    print(f"tendonsense: view at http://{args.host}:{args.port}", file=sys.stderr)
-    return viewer
-
-
-def _view(args, robot):
-    """Serve until Ctrl-C."""
-    viewer = _open_view(args, robot)
-    try:
-        while True:
-            time.sleep(0.5)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        viewer.close()
-
-
 def _positive(text: str) -> float:
     try:
         v = float(text)
@@ -278,39 +110,369 @@ def _positive(text: str) -> float:
     return v
 
 
-def _beside(path: str, suffix: str) -> str:
-    """``shape.png`` → ``shape_location.png``."""
+def _robot_argument(p, default: str | None = None):
+    if default is None:
+        p.add_argument("robot", help="the robot file (TOML)")
+    else:
+        p.add_argument("robot", nargs="?", default=str(DATA / default),
+                       help=f"the robot file (TOML; default: the paper's {default}, shipped "
+                            f"with tendonsense)")
+        p.add_argument("--robot", dest="robot_option", help=argparse.SUPPRESS)
+
+
+def _common(p: argparse.ArgumentParser):
+    _robot_argument(p)
+    p.add_argument("--point-force", action="append", default=[], metavar="X,FX,FY,FZ",
+                   type=_numbers(4, "X,FX,FY,FZ"),
+                   help="a known force FX, FY, FZ (N, global frame) acting at the distance X "
+                        "(m) from the base along the rod; repeatable")
+    p.add_argument("--json", action="store_true",
+                   help="print the result as one JSON object instead of text")
+    p.add_argument("--plot", metavar="SHAPE.png",
+                   help="also draw the rod's shape (side and top views), its markers, tendons "
+                        "and forces into a PNG file (and, for a force of unknown location, the "
+                        "misfit over X into SHAPE_location.png); a solve that did not converge "
+                        "is drawn stamped NOT CONVERGED")
+
+
+def _analysis(sub, name, summary, description, robot_default):
+    p = sub.add_parser(name, help=summary, description=description)
+    _robot_argument(p, robot_default)
+    p.add_argument("-o", "--out-dir", default="tendonsense_results", metavar="FOLDER",
+                   help="the folder for the table (CSV and JSON) and the figure (PNG); made if "
+                        "missing (default: tendonsense_results)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
+    return p
+
+
+def _experiments_table(p):
+    p.add_argument("csv", nargs="?", default=str(DATA / "paper_experiments.csv"),
+                   metavar="EXPERIMENTS.csv",
+                   help="the experiments table (default: the paper's, shipped with tendonsense)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="tendonsense", description=DESCRIPTION,
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"tendonsense {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser,
+                                metavar="COMMAND")
+
+    def command(name, summary, description):
+        return sub.add_parser(name, help=summary, description=description)
+
+    p = command("solve", "shape from tendon tensions (forward statics)",
+                "Compute the rod's shape, tendon length changes and marker positions from the "
+                "tendon tensions and any known forces.")
+    _common(p)
+    p.add_argument("--tension", action="append", default=[], type=_assignment,
+                   metavar="NAME=N",
+                   help="a tendon's tension in newtons (>= 0); once per tendon; tendons not "
+                        "named are slack")
+
+    p = command("fk", "shape and tensions from tendon length changes (forward kinematics)",
+                "Compute the rod's shape and the tensions needed for the given tendon length "
+                "changes (negative = pulled in).")
+    _common(p)
+    p.add_argument("--displacement", action="append", default=[], type=_assignment,
+                   metavar="NAME=M",
+                   help="a tendon's length change in metres (negative = pulled in); once per "
+                        "tendon")
+    p.add_argument("--tension", action="append", default=[], type=_assignment,
+                   metavar="NAME=N",
+                   help="the tension (N, >= 0) of a tendon whose length change is not given; "
+                        "tendons not named are slack")
+
+    p = command("estimate", "shape and unknown forces from tendon readings (estimation)",
+                "Estimate the rod's shape and the size of unknown loads from measured tendon "
+                "length changes and tensions: one reading given on the command line, or every "
+                "row of a readings log (--readings). Each unknown needs one measured tendon "
+                "(a located one two); with more measured tendons than unknowns the estimate is "
+                "a least-squares fit. Every magnitude comes with a 1-sigma band for sensor "
+                "noise. A measured tendon needs its length change and its tension; in a log "
+                "every tendon has a tension_<name> column (zeros for a slack one).")
+    _common(p)
+    p.add_argument("--displacement", action="append", default=[], type=_assignment,
+                   metavar="NAME=M",
+                   help="a measured tendon length change in metres (negative = pulled in); "
+                        "needs the same tendon's --tension")
+    p.add_argument("--tension", action="append", default=[], type=_assignment,
+                   metavar="NAME=N",
+                   help="a measured tendon tension in newtons (>= 0); tendons not named are "
+                        "slack")
+    p.add_argument("--unknown", action="append", default=[], type=_unknown, required=True,
+                   metavar="X,DX,DY,DZ|?,DX,DY,DZ|A:B,DX,DY,DZ|gravity", help=UNKNOWN_HELP)
+    p.add_argument("--readings", metavar="READINGS.csv",
+                   help="estimate every row of a readings log (CSV); '-' reads the log live "
+                        "from standard input")
+    p.add_argument("-o", "--estimates", metavar="ESTIMATES.csv",
+                   help="with --readings: write the estimates to this CSV file (atomically, "
+                        "when every row is done); without it, or with '-', each result row goes "
+                        "to standard output as soon as it is estimated")
+    p.add_argument("--output", dest="estimates", help=argparse.SUPPRESS)
+    p.add_argument("--length-noise", type=_positive, default=1e-4, metavar="M",
+                   help="standard deviation of the tendon length sensors in metres, for the "
+                        "uncertainty band (default 0.0001 m = 0.1 mm)")
+    p.add_argument("--tension-noise", type=_positive, default=0.025 / 3, metavar="FRACTION",
+                   help="standard deviation of the tension sensors as a fraction of the "
+                        "reading (default 0.00833, i.e. 2.5 %% / 3)")
+    p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
+    p.add_argument("--view", action="store_true",
+                   help="with --readings: show the estimates live in a 3-D view in the browser "
+                        "(needs the optional package viser); a file log is replayed at its "
+                        "time stamps")
+    _view_options(p)
+
+    p = command("view", "explore a robot in a live 3-D view in the browser",
+                "Serve an interactive view of the robot's forward statics: a slider per tendon "
+                "tension and one point force (X, direction, size); the shape, disks, tendons "
+                "and markers are redrawn as they change. Needs the optional package viser "
+                "(pip install 'tendonsense[view]'). Ctrl-C ends it.")
+    _robot_argument(p)
+    _view_options(p)
+    p.add_argument("--max-tension", type=_positive, default=5.0, metavar="N",
+                   help="the tension sliders' range, N (default 5)")
+    p.add_argument("--max-force", type=_positive, default=1.0, metavar="N",
+                   help="the point force slider's range, N (default 1)")
+
+    p = command("identify", "fit stiffness, density or friction to measured poses (calibration)",
+                "Fit the Young's modulus, density and/or friction coefficients of the robot "
+                "file to static poses (snapshots): marker positions, the tendons' own length "
+                "readings (no camera needed), or both. Every tendon has a tension_<name> "
+                "column (zeros for a slack one).")
+    p.add_argument("robot", help="the robot file (TOML); its values are the starting guess")
+    p.add_argument("--snapshots", required=True, metavar="SNAPSHOTS.csv",
+                   help="the measured poses: tensions, an optional known load, marker "
+                        "positions and/or tendon length changes, one row per pose")
+    p.add_argument("--param", action="append", metavar="NAME",
+                   help="a parameter to fit: young_modulus, density, friction (one μ for every "
+                        "tendon) or friction_<tendon>; repeatable (default: young_modulus and "
+                        "density)")
+    p.add_argument("--marker-noise", type=_positive, default=1e-3, metavar="M",
+                   help="standard deviation of a marker coordinate, m (default 0.001)")
+    p.add_argument("--length-noise", type=_positive, default=1e-4, metavar="M",
+                   help="standard deviation of a tendon length reading, m (default 0.0001)")
+    p.add_argument("--crossval", action="store_true",
+                   help="also refit without each snapshot and report how well it is predicted")
+    p.add_argument("--plot", metavar="FIGURE.png",
+                   help="write a figure of the per-snapshot errors (and the cross-validation)")
+    p.add_argument("-o", "--fitted-robot", metavar="FITTED.toml",
+                   help="write the robot file with the fitted values (its comments kept, a "
+                        "header saying how it was fitted); only if the fit converged")
+    p.add_argument("--output", dest="fitted_robot", help=argparse.SUPPRESS)
+    p.add_argument("--json", action="store_true",
+                   help="print the result as one JSON object instead of text")
+
+    p = _analysis(sub, "sensitivity", "how errors in tendon length, tension and friction "
+                  "change the estimated force (the paper's Fig. 3a and 3b)",
+                  "Estimate a tip force from readings with a length, tension or friction "
+                  "error, on one tendon over a range of length changes (the paper's Fig. 3a) "
+                  "and on three tendons for 27 combinations of errors (its Fig. 3b, with 2-σ "
+                  "ellipsoids); writes the tables, a summary and the figures.",
+                  "paper_simulation.toml")
+    p.add_argument("--points", type=int, default=9,
+                   help="tendon length changes per force in the one-tendon study (default 9)")
+    _analysis(sub, "resolution", "the smallest force change the tension sensors can resolve "
+              "(the paper's Section IV)",
+              "For a range of applied tip forces, the smallest change of each force component "
+              "that the tension sensors' resolution can detect (the paper's Section IV); "
+              "writes the table, a summary and the figure.", "paper_simulation.toml")
+    p = _analysis(sub, "compare", "this model against the paper's simpler rod models on the "
+                  "paper's experiments (the paper's Fig. 6)",
+                  "Estimate the paper's experiments with this model and with the paper's "
+                  "simpler rod models (3D-PC, 3D-PC+E) and compare their errors (the paper's "
+                  "Fig. 6); writes the table, a summary and the figure.",
+                  "paper_prototype.toml")
+    _experiments_table(p)
+
+    p = command("experiments", "re-run the paper's experiments (its Tables II to IV)",
+                "Estimate every row of the paper's experiments and compare with the applied "
+                "loads and the paper's own estimates.")
+    _robot_argument(p, "paper_prototype.toml")
+    _experiments_table(p)
+    p.add_argument("--json", action="store_true",
+                   help="print the result as one JSON object instead of text")
+    return parser
+
+
+def _view_options(p):
+    p.add_argument("--port", type=int, default=8080, metavar="N",
+                   help="the view's port (default 8080)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="the address to serve the view on (default 127.0.0.1, this machine "
+                        "only); another address exposes it to the network")
+
+
+# --------------------------------------------------------------------- checks before computing
+
+def _join_negative_values(argv: list[str]) -> list[str]:
+    """``--point-force -0.1,0,0,-1`` → ``--point-force=-0.1,0,0,-1`` (argparse takes a value
+    that starts with '-' for an option)."""
+    out, i = [], 0
+    while i < len(argv):
+        a = argv[i]
+        if (a in VALUE_OPTIONS and i + 1 < len(argv) and argv[i + 1][:1] == "-"
+                and argv[i + 1][1:2] in tuple("0123456789.")):
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(a)
+            i += 1
+    return out
+
+
+def _once(pairs, flag: str) -> dict[str, float]:
+    """NAME=VALUE flags as a dict; a name given twice is a usage error."""
+    out: dict[str, float] = {}
+    for name, value in pairs:
+        if name in out:
+            raise UsageError(f"tendonsense: {flag} {name} given twice ({out[name]:g} and "
+                             f"{value:g})")
+        out[name] = value
+    return out
+
+
+def _writable(path, what: str) -> None:
+    """An output file's folder exists and can be written, before any computation."""
     p = Path(path)
-    return str(p.with_name(p.stem + suffix + p.suffix))
+    folder = p.parent
+    if p.is_dir():
+        raise ValueError(f"{what} {path}: is a folder, not a file")
+    if not folder.is_dir():
+        raise ValueError(f"{what} {path}: no folder {str(folder)!r}")
+    if not os.access(folder, os.W_OK):
+        raise ValueError(f"{what} {path}: the folder {str(folder)!r} is not writable")
+
+
+def _check(args, robot) -> None:
+    """Every argument against the robot, and every output path, by the rules of
+    :mod:`tendonsense.inputs` (nothing computed, JAX not started)."""
+    cmd = args.command
+    if cmd in ("solve", "fk", "estimate"):
+        tensions = _once(args.tension, "--tension")
+        displacements = _once(getattr(args, "displacement", []), "--displacement")
+        inputs.check_point_forces(robot, _point_forces(args))
+        if cmd == "solve":
+            inputs.tensions(robot, tensions)
+        elif cmd == "fk":
+            if not displacements:
+                raise UsageError("tendonsense fk: give at least one --displacement NAME=M")
+            clash = [n for n in displacements if n in tensions]
+            if clash:
+                raise UsageError(f"tendonsense fk: tendon {clash[0]}: give its --displacement "
+                                 f"or its --tension, not both")
+            inputs.displacements(robot, displacements)
+            inputs.tensions(robot, tensions)
+        else:
+            _check_estimate(args, robot, tensions, displacements)
+        args.tension, args.displacement = tensions, displacements
+        if args.plot:
+            _writable(args.plot, "--plot")
+    elif cmd == "identify":
+        from .readings import read_snapshots
+        bad = [p for p in args.param or () if p not in inputs.parameter_names(robot)]
+        if bad:
+            raise UsageError(f"tendonsense identify: --param {bad[0]}: not a parameter (one of "
+                             f"{', '.join(inputs.parameter_names(robot))})")
+        for path, what in ((args.fitted_robot, "-o/--fitted-robot"), (args.plot, "--plot")):
+            if path:
+                _writable(path, what)
+        args.snapshots_read = read_snapshots(args.snapshots, robot)
+    elif cmd == "experiments" and not Path(args.csv).is_file():
+        raise ValueError(f"{args.csv}: no such file")
+    if (cmd == "view" or getattr(args, "view", False)) and not 0 < args.port < 65536:
+        raise UsageError(f"tendonsense {cmd}: --port {args.port}: not a port number")
+
+
+def _check_estimate(args, robot, tensions, displacements):
+    if args.readings is None:
+        for flag, given in (("--view", args.view), ("-o/--estimates", args.estimates)):
+            if given:
+                raise UsageError(f"tendonsense estimate: {flag} goes with --readings")
+        if not displacements:
+            raise UsageError("tendonsense estimate: give the readings: --displacement NAME=M "
+                             "and --tension NAME=N per measured tendon, or --readings LOG.csv")
+        inputs.readings(robot, displacements, tensions)
+        inputs.check_unknowns(robot, list(displacements), args.unknown)
+        return
+    if displacements or tensions:
+        raise UsageError("tendonsense estimate: --readings replaces --displacement/--tension")
+    if args.plot:
+        raise UsageError("tendonsense estimate: --plot draws one reading; a log's estimates "
+                         "are in its output rows")
+    to_file = args.estimates not in (None, "-")
+    if to_file:
+        if args.view:
+            raise UsageError("tendonsense estimate: --view streams the rows to standard "
+                             "output; leave out -o (or redirect standard output)")
+        _writable(args.estimates, "-o/--estimates")
+    if args.readings != "-":
+        from .readings import read_readings
+        args.log = read_readings(args.readings, robot)
+        inputs.check_unknowns(robot, args.log[0], args.unknown)
 
 
 def _point_forces(args):
     return [(pf[0], pf[1:]) for pf in args.point_force]
 
 
+def _resolve_robot(args) -> None:
+    """The analyses' robot: positional, or the old ``--robot``; a table given first is the
+    table (``experiments TABLE.csv --robot R``, as before)."""
+    option = getattr(args, "robot_option", None)
+    positional = args.robot
+    if positional.endswith(".csv") and hasattr(args, "csv"):
+        if args.csv != str(DATA / "paper_experiments.csv"):
+            raise UsageError(f"tendonsense {args.command}: the robot file comes first, then "
+                             f"the experiments table")
+        args.csv = positional
+        positional = _robot_default(args)
+    if option is not None:
+        if positional != _robot_default(args):
+            raise UsageError(f"tendonsense {args.command}: the robot file given twice")
+        positional = option
+    args.robot = positional
+
+
+def _robot_default(args) -> str:
+    return str(DATA / ("paper_simulation.toml" if args.command in ("sensitivity", "resolution")
+                       else "paper_prototype.toml"))
+
+
+# ------------------------------------------------------------------------------ commands
+
+def _beside(path: str, suffix: str) -> str:
+    """``shape.png`` → ``shape_location.png``."""
+    p = Path(path)
+    return str(p.with_name(p.stem + suffix + p.suffix))
+
+
+def _given(args) -> str:
+    """What the user gave, for a figure's title."""
+    parts = [f"{n} length change {v * 1e3:+.3f} mm" for n, v in args.displacement.items()]
+    parts += [f"{n} tension {v:.3g} N" for n, v in args.tension.items()]
+    parts += [f"{np.linalg.norm(f):.3g} N known force at X = {X:g} m"
+              for X, f in _point_forces(args)]
+    return "given: " + (", ".join(parts) if parts else "no tension (gravity only)")
+
+
 def _plot_shape(args, robot, result, unknowns=()):
-    if not getattr(args, "plot", None):
-        return
     from . import plotting
-    from .estimation import PointForceUnknown
     estimated = []
     if result.magnitudes is not None:
         where = result.extra.get("locations") or [None] * len(unknowns)
         estimated = [(u.X if where[i] is None else where[i],
-                      result.magnitudes[i] * np.asarray(u.direction))
+                      result.magnitudes[i] * np.asarray(u.direction), result.sigma[i])
                      for i, u in enumerate(unknowns) if isinstance(u, PointForceUnknown)]
     if "location_profile" in result.extra:
         plotting.location_profile(result, _beside(args.plot, "_location"))
     what = {"solve": "shape under the given tensions (forward statics)",
             "fk": "shape for the given tendon length changes (forward kinematics)",
-            "estimate": "shape and force estimated from tendon readings"}[args.command]
-    X = np.linspace(0.0, robot.rod.length, 2)
-    rest = np.asarray(robot.base_position) + X[:, None] * np.asarray(robot.base_rotation)[:, 0]
-    plotting.shape(result, args.plot, robot.rod.length, _point_forces(args),
-                   title=f"{robot.name}: {what}",
-                   kind="estimated" if args.command == "estimate" else "computed",
-                   estimated_forces=estimated, rest=rest,
-                   tensions={k: v for k, v in result.tensions.items() if v > 0})
+            "estimate": "shape and forces estimated from tendon readings"}[args.command]
+    plotting.shape(result, args.plot, robot, forces=_point_forces(args), estimated=estimated,
+                   title=f"{robot.name}: {what}", given=_given(args),
+                   failed=None if result.converged else result.extra.get("note", ""))
 
 
 class _Progress:
@@ -331,13 +493,16 @@ class _Progress:
 
 
 def _analysis_run(args):
-    from pathlib import Path
-
-    from . import analyses, plotting
-    from .readings import write_csv_atomic, write_text_atomic
     robot = load_robot(args.robot)
     out = Path(args.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"-o/--out-dir {args.out_dir}: cannot make the folder "
+                         f"({exc.strerror})") from None
+    _writable(out / "summary.json", "-o/--out-dir")
+    from . import analyses, plotting
+    from .readings import write_csv_atomic, write_text_atomic
     prog = _Progress(args, args.command)
     files = []
     if args.command == "sensitivity":
@@ -423,9 +588,14 @@ def _vector(v) -> str:
     return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
 
 
+
+
+def _vector(v) -> str:
+    return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
+
+
 def unknown_label(u) -> str:
     """Words for an unknown load, e.g. "force at X = 0.25 m along (0, 0, -1)"."""
-    from .estimation import PointForceUnknown
     if isinstance(u, PointForceUnknown):
         where = ("somewhere on the rod" if u.X is None else
                  f"somewhere in X = {u.X[0]:g}:{u.X[1]:g} m" if u.located else f"at X = {u.X:g} m")
@@ -434,24 +604,22 @@ def unknown_label(u) -> str:
 
 
 def magnitude_text(u, value: float, sigma=None) -> str:
-    """A magnitude with its unit, e.g. "0.0759 N (7.7 gF) ± 0.0027 N (1 sigma)"."""
-    from .estimation import PointForceUnknown
-    band = ""
+    """A magnitude with its unit, e.g. "0.0759 N (7.7 gF) ± 0.0027 N (0.3 gF) (1 σ)"."""
     if isinstance(u, PointForceUnknown):
-        if sigma is not None:
-            band = f" ± {sigma:.2g} N (1 σ)"
-        return f"{value:.4g} N ({value / GF:.1f} gF){band}"
-    if sigma is not None:
-        band = f" ± {sigma:.2g} (1 σ)"
-    return f"{value:.4g}{band}"
+        return newtons(value, sigma) + (" (1 σ)" if sigma is not None else "")
+    return f"{value:.4g}" + (f" ± {sigma:.2g} (1 σ)" if sigma is not None else "")
 
 
 def _print_result(result, as_json: bool, title: str, robot, unknowns=()):
     if as_json:
         print(json.dumps(result.to_json()))
         return
-    state = "converged" if result.converged else "NOT CONVERGED"
-    print(f"{title} ({robot.name}): {state} in {result.iterations} iterations "
+    if not result.converged:
+        print(f"{title} ({robot.name}): NOT CONVERGED: {result.extra.get('note', '')}")
+        print("no result: the last iterate is not a solution (--json gives it, marked "
+              "\"converged\": false; --plot draws it, stamped)")
+        return
+    print(f"{title} ({robot.name}): converged in {result.iterations} iterations "
           f"(relative residual {result.residual:.1e})")
     if result.magnitudes is not None:
         print("estimated loads:")
@@ -479,68 +647,81 @@ def _print_result(result, as_json: bool, title: str, robot, unknowns=()):
               f"({' '.join(f'{v * 1e3:+.1f}' for v in p)} mm)")
 
 
-def _estimate(args, robot):
-    from .estimation import Noise, estimate
+def _single(args, robot) -> bool:
+    """solve, fk or a single estimate: the result printed, the figure drawn if asked."""
+    if args.command == "estimate":
+        from .estimation import estimate
+        result = estimate(robot, args.displacement, args.tension, args.unknown,
+                          _point_forces(args), Noise(args.length_noise, args.tension_noise))
+        title = "estimation"
+    elif args.command == "solve":
+        from .forward import solve
+        result = solve(robot, args.tension, _point_forces(args))
+        title = "forward statics"
+    else:
+        from .forward import forward_kinematics
+        result = forward_kinematics(robot, args.displacement, args.tension,
+                                    _point_forces(args))
+        title = "forward kinematics"
+    _print_result(result, args.json, title, robot, args.unknown
+                  if args.command == "estimate" else ())
+    if args.plot:
+        _plot_shape(args, robot, result, getattr(args, "unknown", ()))
+    return result.converged
+
+
+def _log(args, robot) -> bool:
+    """estimate --readings: a file log on the compiled scan, rows out as chunks finish (to
+    standard output, or into ESTIMATES.csv atomically); a live log row by row."""
     noise = Noise(args.length_noise, args.tension_noise)
-    if args.readings is None:
-        if args.view:
-            raise UsageError("tendonsense estimate: --view goes with --readings")
-        if args.output:
-            raise UsageError("tendonsense estimate: -o/--output goes with --readings")
-        result = estimate(robot, dict(args.displacement), dict(args.tension), args.unknown,
-                          _point_forces(args), noise)
-        _print_result(result, args.json, "estimation", robot, args.unknown)
-        _plot_shape(args, robot, result, args.unknown)
-        return result.converged
-    from . import readings as rd
-    if args.displacement or args.tension:
-        raise UsageError("tendonsense estimate: --readings replaces --displacement/--tension")
-    if args.output in (None, "-"):
+    if args.readings == "-" or args.view:
         return _stream(args, robot, noise)
-    if args.view:
-        raise UsageError("tendonsense estimate: --view streams the rows to standard output; "
-                         "leave out -o (or redirect standard output)")
-    if args.readings == "-":
-        lines = sys.stdin
-        try:
-            columns = rd.parse_header(next(csv.reader(lines)), robot, "<stdin>")
-        except StopIteration:
-            raise rd.ReadingsError("<stdin>: no header row") from None
-        samples = []
-        try:
-            for i, raw in enumerate(csv.reader(lines), start=1):
-                if any(c.strip() for c in raw):
-                    samples.append(rd.parse_row(i, raw, columns, robot))
-        except KeyboardInterrupt:
-            pass  # estimate what has been read
-        measured = columns.measured
-    else:
-        measured, samples = rd.read_readings(args.readings, robot)
+    from . import readings as rd
+    from .logs import estimate_chunks
+    measured, samples = args.log
+    forces, unknowns = _point_forces(args), args.unknown
+    where = rd.located(unknowns)
+    with_shape = any(s.markers for s in samples)
+    to_file = args.estimates not in (None, "-")
+    out = rd.AtomicText(args.estimates) if to_file else sys.stdout
     prog = _Progress(args, "estimate")
-    results = rd.estimate_readings(robot, measured, samples, args.unknown, _point_forces(args),
-                                   noise, progress=prog)
-    prog.close()
-    for s in samples:
-        if s.error:
-            print(f"tendonsense: {args.readings}: row {s.row} skipped: {s.error}",
-                  file=sys.stderr)
-    header, rows = rd.output_rows(robot, samples, results, len(args.unknown),
-                                  rd.located(args.unknown))
-    rd.write_csv_atomic(args.output, header, rows)
-    ok = [r for r in results if r is not None and r.converged]
-    summary = {"samples": len(samples), "converged": len(ok),
-               "skipped": sum(r is None for r in results), "output": str(args.output)}
-    if args.json:
-        print(json.dumps(summary))
-    else:
-        print(f"estimated {len(samples)} samples: {len(ok)} converged, "
-              f"{summary['skipped']} skipped; wrote {args.output}")
-    return len(ok) == len(samples)
+    good = 0
+    try:
+        writer = csv.writer(out)
+        writer.writerow(rd.output_header(robot, len(unknowns), with_shape, where))
+        for first, estimates in estimate_chunks(robot, measured, samples, unknowns, forces,
+                                                noise):
+            for s, r in zip(samples[first:], estimates):
+                if r is None:
+                    print(f"tendonsense: {args.readings}: row {s.row} skipped: {s.error}",
+                          file=sys.stderr)
+                writer.writerow(rd.output_row(robot, s, r, len(unknowns), with_shape, where))
+                good += bool(r is not None and r.converged)
+            out.flush()
+            prog(first + len(estimates), len(samples))
+        if to_file:
+            out.commit()
+    except BrokenPipeError:  # the reader went away: stop quietly
+        sys.stderr.close()
+        return True
+    finally:
+        prog.close()
+        if to_file:
+            out.close()
+    if to_file:
+        summary = {"samples": len(samples), "converged": good,
+                   "skipped": sum(bool(s.error) for s in samples), "output": str(args.estimates)}
+        if args.json:
+            print(json.dumps(summary))
+        else:
+            print(f"estimated {len(samples)} samples: {good} converged, {summary['skipped']} "
+                  f"skipped; wrote {args.estimates}")
+    return good == len(samples)
 
 
 def _stream(args, robot, noise) -> bool:
     """Output rows on stdout as they are estimated; an interrupt ends cleanly."""
-    from . import readings as rd
+    from .logs import stream_readings
 
     source = "<stdin>" if args.readings == "-" else args.readings
 
@@ -566,8 +747,10 @@ def _stream(args, robot, noise) -> bool:
     rows = good = 0
     try:
         with fh:
-            rows, good = rd.stream_readings(robot, lines, sys.stdout, args.unknown, forces,
-                                            noise, source, skipped, on_sample)
+            rows, good = stream_readings(robot, lines, sys.stdout, args.unknown, forces,
+                                         noise, source, skipped, on_sample)
+        if not rows:
+            raise ReadingsError(f"{source}: no data rows below the header")
         if viewer is not None and args.readings != "-":
             print("tendonsense: the log is done; the view stays until Ctrl-C", file=sys.stderr)
             while True:
@@ -611,9 +794,34 @@ def _paced(lines, viewer):
         yield out.getvalue()
 
 
-def _experiments(args) -> bool:
+def _open_view(args, robot, title=None, pause=False):
+    from .view import ViewProcess, explore
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        print(f"tendonsense: warning: the view is served on {args.host}:{args.port}, visible "
+              f"to other machines on the network", file=sys.stderr)
+    if args.command == "view":
+        viewer = explore(robot, args.port, args.host, args.max_tension, args.max_force)
+    else:
+        viewer = ViewProcess(robot, args.port, args.host, title, pause)
+    print(f"tendonsense: view at http://{args.host}:{args.port}", file=sys.stderr)
+    return viewer
+
+
+def _view(args, robot) -> bool:
+    """Serve until Ctrl-C."""
+    viewer = _open_view(args, robot)
+    try:
+        while True:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        viewer.close()
+    return True
+
+
+def _experiments(args, robot) -> bool:
     from . import experiments
-    robot = load_robot(args.robot)
     prog = _Progress(args, "experiments")
     rows = experiments.run(robot, args.csv, progress=prog)
     prog.close()
@@ -647,84 +855,112 @@ def _mm(v):
     return "—" if v is None else f"{v * 1e3:.3f} mm"
 
 
+def _parameter_text(k: str, v: float) -> str:
+    label, unit = PARAMETER_WORDS.get(k, (f"friction coefficient μ of tendon "
+                                          f"{k.partition('_')[2]}", ""))
+    return f"{label} ({k}): {v:.6g}{unit}"
+
+
+def _fitted_header(args, robot, fit) -> list[str]:
+    """The comment block on top of FITTED.toml: how it was made."""
+    from .robot import FITTED_HEADER_MARK
+    now = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    lines = [f"{FITTED_HEADER_MARK.lstrip('# ')} {__version__} on {now}",
+             f"from {args.snapshots} ({len(args.snapshots_read)} snapshots); robot file "
+             f"{args.robot}",
+             "parameters fitted: " + ", ".join(f"{k} = {v:.6g}" for k, v in
+                                               fit.parameters.items())]
+    for what, after, before in (("marker", fit.marker_rmse, fit.initial_marker_rmse),
+                                ("tendon-length", fit.displacement_rmse,
+                                 fit.initial_displacement_rmse)):
+        if after is not None:
+            lines.append(f"{what} RMSE {_mm(after)} (with the robot file's values "
+                         f"{_mm(before)})")
+    return lines
+
+
 def _identify(args, robot) -> bool:
-    from .identification import identify, read_snapshots
-    from .robot import robot_to_toml
-    snapshots = read_snapshots(args.snapshots, robot)
+    from .identification import identify
+    from .readings import write_text_atomic
+    from .robot import fitted_toml
+    snapshots = args.snapshots_read
     prog = _Progress(args, "identify")
     fit = identify(robot, snapshots, args.param or ("young_modulus", "density"), progress=prog,
                    marker_noise=args.marker_noise, length_noise=args.length_noise,
                    crossval=args.crossval)
     prog.close()
-    if args.output:
-        from .readings import write_text_atomic
-        write_text_atomic(args.output, robot_to_toml(fit.robot))
-    if args.plot:
-        from . import plotting
-        plotting.calibration(fit, args.plot)
+    written = []
+    if fit.converged:
+        if args.fitted_robot:
+            text = Path(args.robot).read_text(encoding="utf-8")
+            write_text_atomic(args.fitted_robot,
+                              fitted_toml(text, fit.robot, _fitted_header(args, robot, fit)))
+            written.append(args.fitted_robot)
+        if args.plot:
+            from . import plotting
+            plotting.calibration(fit, args.plot)
+            written.append(args.plot)
     if args.json:
         print(json.dumps(fit.to_json()))
-    else:
-        print(f"identification ({robot.name}, {len(snapshots)} snapshots): "
-              f"{'converged' if fit.converged else 'NOT CONVERGED'} in {fit.iterations} "
-              f"iterations")
-        for k, v in fit.parameters.items():
-            label, unit = PARAMETER_WORDS.get(k, (f"friction coefficient μ of tendon "
-                                                  f"{k.partition('_')[2]}", ""))
-            print(f"  {label} ({k}): {v:.6g}{unit}")
-        if fit.marker_rmse is not None:
-            print(f"  marker RMSE: {_mm(fit.marker_rmse)} after the fit, "
-                  f"{_mm(fit.initial_marker_rmse)} with the robot file's values")
-        if fit.displacement_rmse is not None:
-            print(f"  tendon-length RMSE: {_mm(fit.displacement_rmse)} after the fit, "
-                  f"{_mm(fit.initial_displacement_rmse)} with the robot file's values")
-        if fit.crossval:
-            print("  cross-validation (each snapshot predicted by a fit without it):")
-            for c in fit.crossval:
-                errs = ", ".join(f"{w} {_mm(v)} (fitted {_mm(f)})" for w, v, f in (
-                    ("markers", c.marker_error, c.fitted_marker_error),
-                    ("lengths", c.displacement_error, c.fitted_displacement_error))
-                    if f is not None)
-                print(f"    snapshot {c.snapshot}: {errs}" + (f"; {c.note}" if c.note else ""))
-        if args.plot:
-            print(f"  wrote {args.plot}")
-        if args.output:
-            print(f"  wrote {args.output}")
+        return fit.converged
+    print(f"identification ({robot.name}, {len(snapshots)} snapshots): "
+          f"{'converged' if fit.converged else 'NOT CONVERGED'} in {fit.iterations} "
+          f"iterations")
+    for k, v in fit.parameters.items():
+        print(f"  {_parameter_text(k, v)}")
+    if fit.marker_rmse is not None:
+        print(f"  marker RMSE: {_mm(fit.marker_rmse)} after the fit, "
+              f"{_mm(fit.initial_marker_rmse)} with the robot file's values")
+    if fit.displacement_rmse is not None:
+        print(f"  tendon-length RMSE: {_mm(fit.displacement_rmse)} after the fit, "
+              f"{_mm(fit.initial_displacement_rmse)} with the robot file's values")
+    if fit.crossval:
+        print("  cross-validation (each snapshot predicted by a fit without it):")
+        for c in fit.crossval:
+            errs = ", ".join(f"{w} {_mm(v)} (fitted {_mm(f)})" for w, v, f in (
+                ("markers", c.marker_error, c.fitted_marker_error),
+                ("lengths", c.displacement_error, c.fitted_displacement_error))
+                if f is not None)
+            print(f"    snapshot {c.snapshot}: {errs}" + (f"; {c.note}" if c.note else ""))
+    for path in written:
+        print(f"  wrote {path}")
+    if not fit.converged and (args.fitted_robot or args.plot):
+        print("  nothing written: the fit did not converge")
     return fit.converged
 
 
+RUN = {"solve": _single, "fk": _single, "view": _view, "identify": _identify,
+       "experiments": _experiments}
+
+
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    parser = build_parser()
+    if not argv:
+        parser.print_help(sys.stderr)
+        return 2
     try:
-        args = build_parser().parse_args(argv)
-        if args.command == "experiments":
-            return 0 if _experiments(args) else 3
+        args = parser.parse_args(_join_negative_values(argv))
+        if args.command in ("sensitivity", "resolution", "compare", "experiments"):
+            _resolve_robot(args)
         if args.command in ("sensitivity", "resolution", "compare"):
-            return 0 if _analysis_run(args) else 3
+            return 0 if _analysis_run(args) else _not_converged()
         robot = load_robot(args.robot)
-        if args.command == "identify":
-            return 0 if _identify(args, robot) else _not_converged()
-        if args.command == "view":
-            _view(args, robot)
-            return 0
-        from . import forward
+        _check(args, robot)
         if args.command == "estimate":
-            return 0 if _estimate(args, robot) else _not_converged()
-        if args.command == "solve":
-            result = forward.solve(robot, dict(args.tension), _point_forces(args))
-            _print_result(result, args.json, "forward statics", robot)
-            _plot_shape(args, robot, result)
-        elif args.command == "fk":
-            result = forward.forward_kinematics(robot, dict(args.displacement),
-                                                dict(args.tension), _point_forces(args))
-            _print_result(result, args.json, "forward kinematics", robot)
-            _plot_shape(args, robot, result)
+            ok = (_single if args.readings is None else _log)(args, robot)
+        else:
+            ok = RUN[args.command](args, robot)
     except UsageError as exc:
         print(exc, file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader of standard output went away: stop quietly
+        sys.stdout = open(os.devnull, "w")
+        return 0
     except (RobotFileError, ValueError, OSError) as exc:  # a ViewError is an OSError
         print(f"tendonsense: error: {exc}", file=sys.stderr)
         return 1
-    return 0 if result.converged else _not_converged()
+    return 0 if ok else _not_converged()
 
 
 def _not_converged() -> int:

@@ -1,16 +1,18 @@
-"""Compiled programs kept between runs: a program is traced once per robot structure and
-argument shapes, serialised (``jax.export``) into the cache directory, and later processes
-load it instead of tracing it again; the XLA compilation cache (see ``__init__``) then
-supplies the machine code. A cached program is keyed by its name, the structure, the
-argument shapes and a hash of this package's source and of the JAX version, so that an edited
-model never runs a stale program. Without a cache directory, or if serialisation is not
-available, it is plain :func:`jax.jit`.
+"""Compiled programs kept between runs: a program is traced and compiled once per robot
+structure and argument signature, its executable serialised into the cache directory
+(:mod:`tendonsense.settings`), and later processes load the executable instead of tracing,
+lowering and compiling it again. A kept program is keyed by its name, the structure, the
+argument signature, the machine (platform and CPU) and a hash of this package's source and of
+the JAX version, so that an edited model never runs a stale program. Without a cache
+directory, or if an executable cannot be kept, it is plain :func:`jax.jit`.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import pickle
+import platform
 import tempfile
 import threading
 from functools import lru_cache
@@ -19,44 +21,25 @@ from pathlib import Path
 import jax
 import numpy as np
 
-
-def cache_dir() -> Path | None:
-    """``TENDONSENSE_CACHE_DIR`` (an empty value: no cache), else ``~/.cache/tendonsense``."""
-    path = os.environ.get("TENDONSENSE_CACHE_DIR")
-    if path is None:
-        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-        path = os.path.join(base, "tendonsense")
-    return Path(path) if path else None
+from .settings import cache_dir
 
 
 @lru_cache(maxsize=1)
 def _source_hash() -> str:
-    h = hashlib.sha256(jax.__version__.encode())
+    """This package's source, the JAX version and the machine the executables run on."""
+    h = hashlib.sha256(f"{jax.__version__}|{platform.machine()}|{_cpu_flags()}".encode())
     for f in sorted(Path(__file__).parent.glob("*.py")):
         h.update(f.read_bytes())
     return h.hexdigest()[:16]
 
 
-@lru_cache(maxsize=1)
-def _register() -> bool:
-    """Register every named tuple of the modules whose values programs take or return, for
-    serialisation; False if serialisation is unavailable."""
+def _cpu_flags() -> str:
+    """The CPU's feature flags (an executable may use any of them), where the OS tells."""
     try:
-        import flatbuffers  # noqa: F401  (jax.export serialisation needs it)
-    except ImportError:
-        return False
-    from . import kinematics, model, statics, tracking
-    for mod in (kinematics, model, statics, tracking):
-        for name, cls in vars(mod).items():
-            if not (isinstance(cls, type) and issubclass(cls, tuple) and hasattr(cls, "_fields")
-                    and cls.__module__ == mod.__name__):
-                continue
-            try:
-                jax.export.register_namedtuple_serialization(
-                    cls, serialized_name=f"tendonsense.{name}")
-            except ValueError:  # already registered
-                pass
-    return True
+        with open("/proc/cpuinfo") as fh:
+            return next((line for line in fh if line.startswith(("flags", "Features"))), "")
+    except OSError:
+        return platform.processor()
 
 
 #: held while a program compiles: XLA's serialisation of an executable into the compilation
@@ -64,26 +47,8 @@ def _register() -> bool:
 _COMPILING = threading.RLock()
 
 
-class FirstCallLocked:
-    """A jitted function whose first call per argument signature (the one that compiles)
-    holds :data:`_COMPILING`."""
-
-    def __init__(self, fn):
-        self.fn = fn
-        self.seen: set[tuple] = set()
-
-    def __call__(self, *args):
-        signature = _signature(args)
-        if signature in self.seen:
-            return self.fn(*args)
-        with _COMPILING:
-            out = jax.block_until_ready(self.fn(*args))
-            self.seen.add(signature)
-        return out
-
-
 class Program:
-    """``jax.jit(fn)`` whose traced form is kept on disk between runs (see module doc)."""
+    """``jax.jit(fn)`` whose executables are kept on disk between runs (see module doc)."""
 
     def __init__(self, fn, name: str, key):
         self.fn, self.name, self.key = fn, name, repr(key)
@@ -98,40 +63,49 @@ class Program:
                 call = self.loaded.get(signature)
                 if call is None:
                     call = self._load(signature, args)
-                    out = jax.block_until_ready(call(*args))
                     self.loaded[signature] = call
-                    return out
         return call(*args)
 
     def _load(self, signature: tuple, args):
+        """The kept executable for ``signature``, or a new one compiled and kept."""
         root = cache_dir()
-        if root is None or not _register():
+        if root is None:
             return self.jitted
-        tree, shapes = signature
-        described = ",".join(f"{shape}:{dtype}" for shape, dtype in shapes)
+        tree, leaves = signature
+        described = ",".join(f"{shape}:{dtype}:{weak}" for shape, dtype, weak in leaves)
         digest = hashlib.sha256(f"{self.name}|{self.key}|{tree}|{described}|{_source_hash()}"
                                 .encode()).hexdigest()[:32]
-        path = root / "programs" / f"{self.name}-{digest}.bin"
+        path = root / "programs" / f"{self.name}-{digest}.exe"
         try:
-            exp = jax.export.deserialize(bytearray(path.read_bytes()))
-        except FileNotFoundError:
-            exp = None
-        except Exception:  # an unreadable file: trace again, and overwrite it
-            exp = None
-        if exp is None:
-            try:
-                exp = jax.export.export(self.jitted)(*args)
-                _write_atomic(path, exp.serialize())
-            except Exception:
-                return self.jitted
-        return jax.jit(exp.call)
+            return _deserialize(path.read_bytes())
+        except Exception:  # none kept yet, or unreadable: compile, and keep it
+            pass
+        compiled = self.jitted.lower(*args).compile()
+        try:
+            _write_atomic(path, _serialize(compiled))
+        except Exception:  # an executable that cannot be kept still runs
+            pass
+        return compiled
+
+
+def _serialize(compiled) -> bytes:
+    from jax.experimental.serialize_executable import serialize
+    return pickle.dumps(serialize(compiled))
+
+
+def _deserialize(data: bytes):
+    from jax._src.lax import linalg
+    from jax.experimental.serialize_executable import deserialize_and_load
+    linalg.initialize_lapack()  # LAPACK's kernels, which a loaded executable may call
+    return deserialize_and_load(*pickle.loads(data))
 
 
 def _signature(args) -> tuple:
-    """The tree structure and every leaf's shape and dtype (hashable; checked on every call)."""
+    """The tree structure and every leaf's shape, dtype and weak typing (hashable; checked on
+    every call)."""
     leaves, tree = jax.tree_util.tree_flatten(args)
-    return tree, tuple((np.shape(a), a.dtype if hasattr(a, "dtype") else np.result_type(a))
-                       for a in leaves)
+    return tree, tuple((np.shape(a), a.dtype if hasattr(a, "dtype") else np.result_type(a),
+                        getattr(a, "weak_type", not hasattr(a, "dtype"))) for a in leaves)
 
 
 def _write_atomic(path: Path, data: bytes):

@@ -18,62 +18,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import inputs
 from .compiled import Program
-from .forward import check_point_forces, finite, make_result, model_for, tendon_vector
+from .forward import make_result, model_for
+from .inputs import (GravityUnknown, Noise, PointForceUnknown, Unknown,  # noqa: F401 (API)
+                     check_point_forces)
 from .model import Model, Structure, Values
 from .result import Result
 from .robot import Robot
 from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, shape_outputs, solve_system,
                       terms)
-
-
-@dataclass(frozen=True)
-class PointForceUnknown:
-    """A point force of unknown magnitude (N) along the global unit ``direction`` at ``X``.
-
-    ``X`` is where it acts (m), or, for a force whose location is unknown too, ``None``
-    (anywhere on the rod) or a range ``(A, B)``: the estimate then finds X as well
-    (:attr:`located`), which takes one more measured tendon."""
-
-    X: float | tuple[float, float] | None
-    direction: tuple[float, float, float]
-
-    def __post_init__(self):
-        d = np.asarray(self.direction, float)
-        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
-            raise ValueError(f"unknown force at X = {self.X}: direction must be 3 finite "
-                             f"numbers, not all zero")
-        if isinstance(self.X, (tuple, list)):
-            if len(self.X) != 2:
-                raise ValueError(f"unknown force: a range of X is two numbers, got {self.X!r}")
-            a, b = (finite("unknown force X range", v) for v in self.X)
-            if not a < b:
-                raise ValueError(f"unknown force: the range of X must increase, got {a:g}:{b:g}")
-            object.__setattr__(self, "X", (a, b))
-        elif self.X is not None:
-            object.__setattr__(self, "X", finite("unknown force X", self.X))
-        object.__setattr__(self, "direction", tuple(d / np.linalg.norm(d)))
-
-    @property
-    def located(self) -> bool:
-        """Whether X is unknown too."""
-        return not isinstance(self.X, float)
-
-
-@dataclass(frozen=True)
-class GravityUnknown:
-    """The unknown scale of the robot's gravity (1 = the robot file's acceleration)."""
-
-
-@dataclass(frozen=True)
-class Noise:
-    """Sensor noise (1 σ) for the uncertainty band: lengths in m, tensions relative."""
-
-    length: float = 1e-4
-    tension: float = 0.025 / 3
-
-
-Unknown = PointForceUnknown | GravityUnknown
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,26 +77,22 @@ class Problem:
     @cached_property
     def rest_lengths(self) -> np.ndarray:
         """Every tendon's path length on the straight rod (l* of eq. 9), m."""
-        rest = np.zeros(len(self.robot.tendons))
-        structure, values = self.model.structure, self.model.values
-        for idx, grp in zip(structure.groups, values.tendons):
-            rest[list(idx)] = np.asarray(grp.rest_length)
-        if structure.continuous:
-            rest[list(structure.continuous)] = np.asarray(values.continuous.rest_length)
-        return rest
+        return inputs.rest_lengths(self.robot)
+
+    def readings(self, displacements: Mapping[str, float], tensions: Mapping[str, float]
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """``(T, y)`` per tendon of one reading, by the rules of :mod:`tendonsense.inputs`;
+        every measured tendon needs its length change and its tension."""
+        names = self.robot.tendon_names
+        for j in self.measured:
+            if names[j] not in displacements:
+                raise ValueError(f"displacement {names[j]}: missing: the tendon is measured")
+        return inputs.readings(self.robot, displacements, tensions)
 
     def reading_error(self, T: np.ndarray, y: np.ndarray) -> str | None:
-        """Why readings (tensions T, length changes y; per tendon) are physically impossible,
-        or None: a negative tension (a tendon cannot push) or a tendon pulled in by more than
-        its length."""
-        rest = self.rest_lengths
-        for j, name in enumerate(self.robot.tendon_names):
-            if T[j] < 0:
-                return f"tension {name} = {T[j]:g} N is negative (a tendon cannot push)"
-            if y[j] < -rest[j]:
-                return (f"displacement {name} = {y[j]:g} m pulls in more than the tendon's "
-                        f"length ({rest[j]:g} m)")
-        return None
+        """Why readings (tensions T, length changes y; per tendon) break the rules of
+        :mod:`tendonsense.inputs`, or None."""
+        return inputs.reading_error(self.robot, T, y, self.measured, self.rest_lengths)
 
     def drive(self, tensions, targets) -> Drive:
         return Drive(np.asarray(tensions, float), self.known_forces, self.load_X, self.gravity,
@@ -152,31 +102,15 @@ class Problem:
 def problem(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
             point_forces=()) -> Problem:
     """Set up the estimation of ``unknowns`` from the tendons named in ``measured``."""
-    if not unknowns:
-        raise ValueError("estimation needs at least one unknown load")
-    for name in measured:
-        if name not in robot.tendon_names:
-            raise ValueError(f"displacement {name}: no such tendon (robot has "
-                             f"{', '.join(robot.tendon_names) or 'none'})")
-    n_a, n_p = len(measured), len(unknowns)
+    inputs.check_unknowns(robot, measured, unknowns)
+    n_p = len(unknowns)
     n_loc = sum(isinstance(u, PointForceUnknown) and u.located for u in unknowns)
-    if n_a < n_p + n_loc:
-        where = (f" and {n_loc} unknown location{'s' if n_loc > 1 else ''}" if n_loc else "")
-        raise ValueError(f"{n_p} unknown load magnitude{'s' if n_p > 1 else ''}{where} need at "
-                         f"least {n_p + n_loc} tendons with measured length and tension; got "
-                         f"{n_a} (n_a >= n_p{' + located' if n_loc else ''}, eq. 17)")
-    if sum(isinstance(u, GravityUnknown) for u in unknowns) > 1:
-        raise ValueError("gravity can be unknown only once")
     X_known, F_known = check_point_forces(robot, point_forces)
     forces = [u for u in unknowns if isinstance(u, PointForceUnknown)]
     L = robot.rod.length
     ranges = []
     for u in forces:
-        a, b = (0.0, L) if u.X is None else (u.X if u.located else (u.X, u.X))
-        if not 0.0 <= a <= b <= L:
-            what = f"X = {a:g} m" if a == b else f"the range {a:g}:{b:g} m"
-            raise ValueError(f"unknown force: {what} is outside the rod [0, {L:g}]")
-        ranges.append((a, b))
+        ranges.append((0.0, L) if u.X is None else (u.X if u.located else (u.X, u.X)))
     n_known = len(X_known)
     Fz = np.zeros((n_p + n_loc, n_known + len(forces), 3))
     az = np.zeros((n_p + n_loc, 3))
@@ -317,9 +251,8 @@ def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Nois
     values (e.g. a friction error, :meth:`Model.with_values`) without recompiling; ``budget``
     bounds the evaluations of each equilibrium solve (:func:`~tendonsense.statics.solve_system`).
     With located unknowns ``x0`` is not used: their X is searched over its whole range."""
-    robot, model = prob.robot, prob.model
-    T = tendon_vector(robot, tensions, "tension")
-    y_all = tendon_vector(robot, displacements, "displacement")
+    model = prob.model
+    T, y_all = prob.readings(displacements, tensions)
     drive = prob.drive(T, y_all[list(prob.measured)])
     values = model.values if values is None else values
     if prob.located:

@@ -4,7 +4,6 @@ tensions, eq. 16), and the derivatives of a solution with respect to the values 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Mapping, Sequence
@@ -13,7 +12,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import tendons
+from . import inputs, tendons
+from .inputs import PointForce, check_point_forces, finite, tendon_vector  # noqa: F401 (API)
+from .compiled import Program
 from .kinematics import poses
 from .model import Model
 from .result import Result
@@ -24,9 +25,6 @@ from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, derivatives, ma
 #: why a solution that satisfies the equations is not reported as converged
 INADMISSIBLE = "strain outside the model's range (a fibre compressed to nothing)"
 
-#: a point force: (X, (fx, fy, fz)) in the global frame, N
-PointForce = tuple[float, Sequence[float]]
-
 
 @lru_cache(maxsize=64)
 def model_for(robot: Robot) -> Model:
@@ -35,49 +33,17 @@ def model_for(robot: Robot) -> Model:
     return Model.build(robot)
 
 
-def finite(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: not a number: {value!r}") from None
-    if not math.isfinite(v):
-        raise ValueError(f"{name}: must be finite, got {v}")
-    return v
-
-
-def tendon_vector(robot: Robot, values: Mapping[str, float] | None, what: str) -> np.ndarray:
-    """Per-tendon values from a {name: value} mapping (missing tendons: 0)."""
-    out = np.zeros(len(robot.tendons))
-    for name, v in (values or {}).items():
-        if name not in robot.tendon_names:
-            raise ValueError(f"{what} {name}: no such tendon (robot has "
-                             f"{', '.join(robot.tendon_names) or 'none'})")
-        out[robot.tendon_names.index(name)] = finite(f"{what} {name}", v)
-    return out
-
-
-def check_point_forces(robot: Robot, point_forces: Sequence[PointForce]):
-    """Validated ``(X (n,), forces (n, 3))`` of known point forces."""
-    Xs, Fs = [], []
-    for i, (X, f) in enumerate(point_forces):
-        X = finite(f"point force {i + 1} X", X)
-        if not 0.0 <= X <= robot.rod.length:
-            raise ValueError(f"point force {i + 1}: X = {X:g} m is outside the rod "
-                             f"[0, {robot.rod.length:g}]")
-        f = np.asarray(f, float).reshape(-1)
-        if f.size != 3 or not np.all(np.isfinite(f)):
-            raise ValueError(f"point force {i + 1}: the force must be 3 finite numbers")
-        Xs.append(X)
-        Fs.append(f)
-    return np.array(Xs, float), np.array(Fs, float).reshape(-1, 3)
-
-
 def make_result(model: Model, x, tensions, res: NewtonResult, **extra) -> Result:
     robot = model.robot
     q = np.asarray(x[: model.nq])
     markers, backbone, y, fine = shape_outputs(model.structure, model.values, q)
-    if bool(res.converged) and not fine:
-        extra["extra"] = {**extra.get("extra", {}), "note": INADMISSIBLE}
+    if not (bool(res.converged) and fine):
+        why = (INADMISSIBLE if not fine else
+               f"the solver stopped after {int(res.iterations)} iterations at relative residual "
+               f"{float(res.residual):.1e} (tolerance {robot.numerics.tolerance:.0e})")
+        note = extra.get("extra", {}).get("note")
+        extra["extra"] = {**extra.get("extra", {}),
+                          "note": why if not note or why in note else f"{why}; {note}"}
     return Result(
         q=q, tensions=dict(zip(robot.tendon_names, map(float, tensions))),
         displacements=dict(zip(robot.tendon_names, map(float, y))),
@@ -89,7 +55,7 @@ def make_result(model: Model, x, tensions, res: NewtonResult, **extra) -> Result
 def _statics_drive(robot: Robot, tensions, point_forces) -> Drive:
     """The drive of a forward problem; without point forces, one of zero size at the base so
     that problems with and without a point force share one compiled program."""
-    T = tendon_vector(robot, tensions, "tension")
+    T = inputs.tensions(robot, tensions)
     X, F = check_point_forces(robot, point_forces)
     if not X.size:
         X, F = np.zeros(1), np.zeros((1, 3))
@@ -114,7 +80,7 @@ def forward_kinematics(robot: Robot, displacements: Mapping[str, float],
     changes ``displacements`` (m) are prescribed; other tendons keep ``tensions`` (default 0)."""
     if not displacements:
         raise ValueError("forward kinematics needs at least one tendon displacement")
-    y = tendon_vector(robot, displacements, "displacement")
+    y = inputs.displacements(robot, displacements)
     measured = tuple(robot.tendon_names.index(n) for n in displacements)
     clash = [n for n in displacements if n in (tensions or {})]
     if clash:
@@ -151,7 +117,7 @@ def _output_jacobian_fn(structure):
         return (marker_positions(structure, values, q),
                 tendons.length_changes(structure, values, poses(values, q)[0], q))
 
-    return jax.jit(jax.jacfwd(outputs))
+    return Program(jax.jacfwd(outputs), "output_jacobian", structure)
 
 
 def solution_derivatives(robot: Robot, tensions: Mapping[str, float] | None = None,

@@ -10,48 +10,28 @@ each weighted by its noise).
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache
-from pathlib import Path
 from typing import Callable, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import tendons
+from . import inputs, tendons
+from .compiled import Program
 from .forward import model_for
+from .inputs import PARAMETERS, parameter_names  # noqa: F401 (API)
 from .kinematics import poses
 from .model import Structure
-from .readings import read_csv_rows
+from .readings import Snapshot, SnapshotError, read_snapshots  # noqa: F401 (API)
 from .robot import Robot
 from .statics import CACHE_SIZE, Drive, Unknowns, marker_positions, solve_system, terms
 
-#: parameters fitted by name; ``friction_<tendon>`` fits one tendon's μ
-PARAMETERS = ("young_modulus", "density", "friction")
 
 #: default measurement noise (1 σ): markers, tendon length changes (m)
 MARKER_NOISE = 1e-3
 LENGTH_NOISE = 1e-4
-
-_DESCRIPTIVE = ("source", "note", "comment", "time", "id", "name")
-
-
-class SnapshotError(ValueError):
-    """Snapshots that cannot identify what was asked; the message says why."""
-
-
-@dataclass(frozen=True)
-class Snapshot:
-    """One static pose: tensions (N, per tendon), an optional known global point load, and
-    what was measured: marker positions (m, global) and/or tendon length changes (m)."""
-
-    tensions: dict[str, float]
-    markers: dict[str, np.ndarray] = field(default_factory=dict)
-    load: tuple[float, tuple[float, float, float]] | None = None
-    displacements: dict[str, float] = field(default_factory=dict)
-
 
 @dataclass(frozen=True)
 class LeftOut:
@@ -98,78 +78,6 @@ class Identified:
         return out
 
 
-def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
-    """SNAPSHOTS.csv: one row per static snapshot (tensions, an optional known load, marker
-    positions and/or tendon length changes)."""
-    path = Path(path)
-    raw = read_csv_rows(path, SnapshotError)
-    header = raw[0] if raw else []
-    rows = [dict(zip(header, r + [""] * (len(header) - len(r))))
-            for r in raw[1:] if any(c.strip() for c in r)]
-    if not rows:
-        raise SnapshotError(f"{path}: no snapshot rows")
-    load_cols = ("load_X", "load_fx", "load_fy", "load_fz")
-    markers = [m for m in robot.marker_names if f"marker_{m}_x" in header]
-    measured = [n for n in robot.tendon_names if f"displacement_{n}" in header]
-    for col in header:
-        kind, _, name = col.partition("_")
-        ok = (col in _DESCRIPTIVE or col in load_cols
-              or (kind in ("tension", "displacement") and name in robot.tendon_names)
-              or (kind == "marker" and name[:-2] in markers and name[-2:] in ("_x", "_y", "_z")))
-        if not ok:
-            raise SnapshotError(f"{path}: column {col!r} is not tension_<tendon>, "
-                                f"displacement_<tendon>, load_X/_fx/_fy/_fz or "
-                                f"marker_<marker>_x/_y/_z")
-    if not markers and not measured:
-        raise SnapshotError(f"{path}: no marker_<name>_x/_y/_z or displacement_<tendon> "
-                            f"columns: nothing to fit to")
-    out = []
-    for i, row in enumerate(rows, start=1):
-        def num(col, required=True):
-            text = (row.get(col) or "").strip()
-            if not text:
-                if required:
-                    raise SnapshotError(f"{path}: snapshot row {i}: column {col} is missing")
-                return None
-            try:
-                v = float(text)
-            except ValueError:
-                v = math.nan
-            if not math.isfinite(v):
-                raise SnapshotError(f"{path}: snapshot row {i}: column {col}: {text!r} is "
-                                    f"not a finite number")
-            return v
-        tensions = {n: num(f"tension_{n}") for n in robot.tendon_names if f"tension_{n}" in row}
-        pos = {}
-        for m in markers:  # a marker is measured in a row when any of its cells is filled
-            cols = [f"marker_{m}_{a}" for a in "xyz"]
-            if any((row.get(c) or "").strip() for c in cols):
-                pos[m] = np.array([num(c) for c in cols])
-        lengths = {n: v for n in measured
-                   if (v := num(f"displacement_{n}", required=False)) is not None}
-        if not pos and not lengths:
-            raise SnapshotError(f"{path}: snapshot row {i}: no marker position and no tendon "
-                                f"displacement: nothing measured")
-        load_vals = [num(c, required=False) if c in row else None for c in load_cols]
-        if all(v is None for v in load_vals):
-            load = None
-        elif any(v is None for v in load_vals):
-            raise SnapshotError(f"{path}: snapshot row {i}: a load needs load_X, load_fx, "
-                                f"load_fy and load_fz")
-        else:
-            if not 0 <= load_vals[0] <= robot.rod.length:
-                raise SnapshotError(f"{path}: snapshot row {i}: load_X = {load_vals[0]:g} is "
-                                    f"outside the rod")
-            load = (load_vals[0], tuple(load_vals[1:]))
-        out.append(Snapshot(tensions, pos, load, lengths))
-    return out
-
-
-def parameter_names(robot: Robot) -> tuple[str, ...]:
-    """Every parameter :func:`identify` can fit for ``robot``."""
-    return (*PARAMETERS, *(f"friction_{n}" for n in robot.tendon_names))
-
-
 def _check(robot: Robot, snapshots: Sequence[Snapshot], params: Sequence[str]):
     if not snapshots:
         raise SnapshotError("no snapshots")
@@ -179,6 +87,11 @@ def _check(robot: Robot, snapshots: Sequence[Snapshot], params: Sequence[str]):
         raise SnapshotError(f"parameters to fit must be among {', '.join(allowed)}; got "
                             f"{', '.join(params) or 'none'}")
     for k, s in enumerate(snapshots, start=1):
+        try:
+            inputs.tensions(robot, s.tensions)
+            inputs.displacements(robot, s.displacements)
+        except ValueError as exc:
+            raise SnapshotError(f"snapshot {k}: {exc}") from None
         if not s.markers and not s.displacements:
             raise SnapshotError(f"snapshot {k}: no measured markers and no tendon "
                                 f"displacements")
@@ -228,7 +141,7 @@ def _observable(J: np.ndarray, params: Sequence[str], what: str):
 
 @lru_cache(maxsize=CACHE_SIZE)
 def _snapshot_fns(structure: Structure):
-    """Jitted marker positions and tendon length changes, and their Jacobians with the
+    """Compiled marker positions and tendon length changes, and their Jacobians with the
     equilibrium's (E_q, E_θ, p_q, y_q), θ the values :data:`PARAMETERS` by name."""
     unknowns = Unknowns.none(structure.n_tendons, 1)
 
@@ -246,7 +159,8 @@ def _snapshot_fns(structure: Structure):
         (Eq, Et), (Yq, _) = jax.jacfwd(equilibrium, argnums=(0, 1))(q, theta, values, drive)
         return Eq, Et, jax.jacfwd(lambda q: marker_positions(structure, values, q))(q), Yq
 
-    return jax.jit(measurements), jax.jit(jacobians)
+    return (Program(measurements, "measurements", structure),
+            Program(jacobians, "identification_jacobians", structure))
 
 
 @dataclass

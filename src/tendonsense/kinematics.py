@@ -12,7 +12,7 @@ Recursion over the grid intervals, ``g_{i+1} = g_i exp(Ω_i)`` and
 
 from __future__ import annotations
 
-from functools import partial
+from functools import lru_cache, partial
 from typing import NamedTuple
 
 import jax
@@ -20,7 +20,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import lie
-from .model import PointSet, Structure, Values
+from .compiled import Program
+from .model import PointSet, Structure, Values, points_at
 
 _XI_STAR = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0])
 _C = np.sqrt(3.0) / 12.0
@@ -65,6 +66,17 @@ def poses(values: Values, q, *points: PointSet):
     ``points``, at those points."""
     grid, _, *at_points = configuration(values, q, *points)[0]
     return (grid, *at_points)
+
+
+@lru_cache(maxsize=8)
+def frames_fn(structure: Structure):
+    """The compiled ``(values, q, X) -> (n, 4, 4)``: poses at the material abscissae X."""
+
+    def at(values: Values, q, X):
+        _, g = poses(values, q, points_at(structure, values, X))
+        return g
+
+    return Program(at, "frames", structure)
 
 
 def configuration(values: Values, q, *points: PointSet):

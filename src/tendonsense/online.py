@@ -11,7 +11,7 @@ import jax
 import numpy as np
 
 from .estimation import Noise, Problem, estimate_problem
-from .forward import INADMISSIBLE, tendon_vector
+from .forward import INADMISSIBLE
 from .statics import solve_system
 from .tracking import SampleEstimate, Track, band, stepper, unpack_row
 
@@ -61,6 +61,14 @@ class OnlineEstimator:
         self._search_cost = None  # s per search over X, measured
         self._failures = 0  # samples failed in a row
 
+    def prepare(self):
+        """Build (or load from the disk cache) every program a sample may need, with a
+        reading of slack tendons at their rest lengths, then forget it: the first real
+        reading is answered at full speed."""
+        names = self.problem.robot.tendon_names
+        self.update({names[j]: 0.0 for j in self.problem.measured}, dict.fromkeys(names, 0.0))
+        self.reset()
+
     def reset(self):
         """Forget the last good sample: the next one starts from the straight rod."""
         self._carry, self._x, self._ref, self._failures = None, None, self.problem, 0
@@ -72,7 +80,7 @@ class OnlineEstimator:
         start = time.perf_counter()
         prob = self.problem
         try:
-            T, y = self._readings(displacements, tensions)
+            T, y = prob.readings(displacements, tensions)
         except ValueError as exc:
             return self._failed(f"bad value: {exc}")
         targets = y[list(prob.measured)]
@@ -181,20 +189,6 @@ class OnlineEstimator:
         return unpack_row(np.asarray(flat), prob.model.nq + prob.n_z,
                           len(prob.measured) + len(self._tcols), len(prob.robot.markers),
                           prob.model.n_tendons)
-
-    def _readings(self, displacements, tensions):
-        robot = self.problem.robot
-        names = robot.tendon_names
-        T = tendon_vector(robot, tensions, "tension")
-        y = tendon_vector(robot, displacements, "displacement")
-        for j in self.problem.measured:
-            if names[j] not in displacements or names[j] not in tensions:
-                raise ValueError(f"tendon {names[j]} is measured: it needs a displacement and "
-                                 f"a tension")
-        error = self.problem.reading_error(T, y)
-        if error:
-            raise ValueError(error)
-        return T, y
 
     def _estimate(self, row, T, iterations) -> SampleEstimate:
         prob, noise = self.problem, self.noise

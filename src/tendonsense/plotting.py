@@ -2,15 +2,25 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
+import jax.numpy as jnp  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.cm import ScalarMappable  # noqa: E402
+from matplotlib.colors import ListedColormap, Normalize  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
 
-from .analyses import GF  # noqa: E402
+from .forward import model_for  # noqa: E402
+from .kinematics import frames_fn  # noqa: E402
+from .result import Result  # noqa: E402
+from .robot import Robot  # noqa: E402
+from .units import GF, newtons  # noqa: E402
 
 SOURCES = ("length", "tension", "friction")
 COLOURS = {"length": "tab:blue", "tension": "tab:orange", "friction": "tab:green"}
@@ -31,57 +41,345 @@ def _equal_3d(ax, pts):
         set_lim(c - half, c + half)
 
 
-def shape(result, path, length: float, forces=(), measured_markers=None, title="shape",
-          kind="computed", estimated_forces=(), rest=None, tensions=None):
-    """3-D backbone (mm), markers and force arrows, written as a PNG.
+#: inches: the largest size of the views together, the gaps between them, the figure margins
+VIEWS_IN = (7.0, 5.6)
+GAP_IN = (0.9, 0.35)
+MARGIN_IN = {"left": 0.8, "right": 1.2, "top": 0.35, "bottom": 0.6}
+#: data margin and smallest axis span, as fractions of the largest span of the data
+PAD, MIN_SPAN = 0.05, 0.14
+#: the arrow of the largest force, as a fraction of the rod's largest span
+ARROW = 0.25
+KNOWN, ESTIMATED, MEASURED, SLACK, REST = "tab:blue", "tab:green", "tab:cyan", "0.8", "0.55"
+TENSION_CMAP = ListedColormap(plt.get_cmap("plasma")(np.linspace(0.0, 0.85, 256)))
+#: (title, global axes shown horizontally and vertically)
+VIEWS = (("side view (x–z)", 0, 2), ("top view (x–y)", 0, 1))
+_LABEL_BOX = dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.8)
 
-    ``kind`` names how the shape was obtained ("computed" for forward statics or kinematics,
-    "estimated" for an estimate from tendon readings) and labels the legend. ``forces`` are
-    known loads and ``estimated_forces`` estimated ones, each ``[(X, f_global N)]``, drawn to
-    one scale at the backbone point nearest X (the backbone is sampled uniformly in X over a
-    rod of ``length``). ``rest`` (n, 3) is the unloaded centre line (m), drawn dashed;
-    ``tensions`` ({name: N}) are listed in the title's second line.
-    """
-    fig = plt.figure(figsize=(6.5, 5.5))
-    ax = fig.add_subplot(projection="3d")
-    b = np.asarray(result.backbone) * 1e3
-    pts = [b]
-    if rest is not None:
-        r = np.asarray(rest) * 1e3
-        ax.plot(*r.T, color="grey", ls="--", lw=1, label="unloaded rod")
-        pts.append(r)
-    ax.plot(*b.T, color="tab:red", lw=2.5, label=f"{kind} backbone")
-    ax.scatter(*b[0], color="black", marker="s", s=30, label="clamped base")
-    if result.markers:
-        m = np.array(list(result.markers.values())) * 1e3
-        ax.scatter(*m.T, color="tab:red", s=30, label=f"{kind} markers")
-    if measured_markers:
-        m = np.array(list(measured_markers.values())) * 1e3
-        ax.scatter(*m.T, color="black", marker="x", s=40, label="measured markers")
-    every = [(X, f, "known") for X, f in forces] + [(X, f, "estimated") for X, f in
-                                                     estimated_forces]
-    scale = 0.25 * np.ptp(b, axis=0).max() / max([np.linalg.norm(f) for _, f, _ in every]
-                                                 + [1e-12])
-    colours = {"known": "tab:blue", "estimated": "tab:purple"}
-    shown = set()
-    for X, f, which in every:
-        i = int(round(X / length * (len(b) - 1)))
-        p, v = b[i], np.asarray(f) * scale
-        ax.quiver(*p, *v, color=colours[which], arrow_length_ratio=0.2,
-                  label=None if which in shown else f"{which} force")
-        shown.add(which)
-        pts.append(np.array([p + v]))
-        n = np.linalg.norm(f)
-        ax.text(*(p + v), f"{n:.3g} N ({n / GF:.0f} gF)", color=colours[which], fontsize=8)
-    _equal_3d(ax, np.concatenate(pts))
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
-    ax.set_zlabel("z (mm)")
-    if tensions:
-        title += "\ntensions: " + ", ".join(f"{k} = {v:.3g} N" for k, v in tensions.items())
-    ax.set_title(title, fontsize=10)
-    ax.legend(loc="upper left", fontsize=8)
-    return _save(fig, path)
+
+Load = tuple[float, Sequence[float]]
+Estimated = tuple[float, Sequence[float], float | None]
+
+
+def shape(result: Result, path, robot: Robot, *, forces: Sequence[Load] = (),
+          estimated: Sequence[Estimated] = (), measured_markers: dict | None = None,
+          title: str = "", given: str = "", failed: str | None = None) -> Path:
+    """The shape figure (:func:`shape_figure`) written as a PNG at ``path``."""
+    return _save(shape_figure(result, robot, forces=forces, estimated=estimated,
+                              measured_markers=measured_markers, title=title, given=given,
+                              failed=failed), path)
+
+
+def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
+                 estimated: Sequence[Estimated] = (), measured_markers: dict | None = None,
+                 title: str = "", given: str = "", failed: str | None = None) -> Figure:
+    """A side (x–z) and a top (x–y) view of ``result`` on ``robot`` at one equal scale (mm):
+    the unloaded rod, the clamped base, the backbone, named markers, the tendons coloured by
+    tension and the point loads drawn to one scale, labelled in N and gF.
+
+    ``forces`` are known loads ``[(X, f N global)]``, ``estimated`` estimated ones
+    ``[(X, f N global, σ N or None)]``; ``measured_markers`` ({name: xyz m}) are drawn as
+    crosses. ``title`` and ``given`` are the two title lines. With ``failed`` (a reason) or a
+    result that did not converge, the views are stamped NOT CONVERGED."""
+    L = robot.rod.length
+    loads = ([(X, np.asarray(f, float), None, KNOWN) for X, f in forces]
+             + [(X, np.asarray(f, float), s, ESTIMATED) for X, f, s in estimated])
+    routes = [np.linspace(0.0, L, 61) if t.continuous else np.asarray(t.disks, float)
+              for t in robot.tendons]
+    model = model_for(robot)
+    g = np.asarray(frames_fn(model.structure)(
+        model.values, jnp.asarray(result.q),
+        jnp.asarray(np.concatenate([*routes, [X for X, *_ in loads]]), float)))
+    p, R = g[:, :3, 3] * 1e3, g[:, :3, :3]
+    tendons, k = [], 0
+    for t, X in zip(robot.tendons, routes):
+        tendons.append((t.name, result.tensions.get(t.name, 0.0), p[k:k + len(X)] + np.einsum(
+            "nij,nj->ni", R[k:k + len(X)], t.offset(X, L) * 1e3)))
+        k += len(X)
+    at = p[k:]
+    backbone = np.asarray(result.backbone, float) * 1e3
+    rest = (np.asarray(robot.base_position, float)
+            + np.outer([0.0, L], np.asarray(robot.base_rotation, float)[:, 0])) * 1e3
+    markers = {m: np.asarray(v, float) * 1e3 for m, v in result.markers.items()}
+    measured = {m: np.asarray(v, float) * 1e3 for m, v in (measured_markers or {}).items()}
+    rod = _finite(np.concatenate([backbone, rest]))
+    big = np.ptp(rod, axis=0).max()
+    fmax = max([np.linalg.norm(f) for _, f, *_ in loads], default=0.0)
+    scale = ARROW * big / fmax if fmax > 0 else 0.0
+    arrows = [(a, f * scale, f, s, c) for a, (_, f, s, c) in zip(at, loads)]
+    lo, hi = _limits(_finite(np.concatenate(
+        [rod, *(r for *_, r in tendons), _points(markers), _points(measured),
+         _points([a - v for a, v, *_ in arrows])])))
+    fig = plt.figure()
+    axes, cax = [fig.add_axes((0, 0, 1, 1)) for _ in VIEWS], fig.add_axes((0, 0, 1, 1))
+    n_title = bool(title) + bool(given)
+    pt_per_mm = 72 * _place(fig, axes, cax, lo, hi, n_title)
+    X_of = {m.name: m.X for m in robot.markers}
+    tmax = max([T for _, T, _ in tendons], default=0.0)
+    norm = Normalize(0.0, tmax if tmax > 0 else 1.0)
+    for view, (ax, (name, i, j)) in enumerate(zip(axes, VIEWS)):
+        ax.set_title(name, loc="left", fontsize=9)
+        ax.set_ylabel(f"{'xyz'[j]} (mm)")
+        ax.plot(rest[:, i], rest[:, j], ls="--", color=REST, lw=1.2, zorder=1)
+        for _, T, r in tendons:
+            ax.plot(r[:, i], r[:, j], color=TENSION_CMAP(norm(T)) if T > 0 else SLACK, lw=1.3,
+                    zorder=2)
+        ax.plot(backbone[:, i], backbone[:, j], color="black", lw=2.5, zorder=3)
+        ax.plot(*rest[0, [i, j]], marker="s", color="black", ms=8, zorder=4)
+        _draw_arrows(ax, view, arrows)
+        names = [(m, markers[m], "black") for m in markers]
+        names += [(m, xyz, MEASURED) for m, xyz in measured.items() if m not in markers
+                  or np.linalg.norm((xyz - markers[m])[[i, j]]) > 0.04 * big]
+        for m, xyz, colour in names:
+            n = _label_side(backbone, L, X_of.get(m), xyz, i, j, arrows)
+            clear = 0.0 if m not in X_of else max([0.0, *(
+                (np.array([np.interp(X_of[m], X, r[:, c]) for c in (i, j)]) - xyz[[i, j]]) @ n
+                for (*_, r), X in zip(tendons, routes))])
+            ax.annotate(m, xyz[[i, j]], xytext=(9 + clear * pt_per_mm) * n, fontsize=8,
+                        textcoords="offset points", color=colour, bbox=_LABEL_BOX, zorder=6,
+                        **_align(n))
+        if markers:
+            ax.scatter(*_points(markers)[:, [i, j]].T, s=30, fc="white", ec="black", lw=1.2,
+                       zorder=5)
+        if measured:
+            ax.scatter(*_points(measured)[:, [i, j]].T, s=45, marker="x", color=MEASURED,
+                       lw=1.8, zorder=5)
+    for _ in range(3):
+        _separate(fig, axes)
+        lo, hi = _fit_text(fig, axes, lo, hi)
+        _place(fig, axes, cax, lo, hi, n_title)
+    if axes[0].get_position().y0 > axes[1].get_position().y1:
+        axes[0].tick_params(labelbottom=False)
+    else:
+        axes[0].set_xlabel("x (mm)")
+    axes[1].set_xlabel("x (mm)")
+    if tmax > 0:
+        _tension_bar(fig, cax, norm, tendons)
+    else:
+        cax.remove()
+    _legend(fig, axes, tendons, markers, measured, loads)
+    _title(fig, axes, title, given)
+    if failed is not None or not result.converged:
+        _stamp(fig, axes, failed)
+    return fig
+
+
+def _finite(pts):
+    return pts[np.isfinite(pts).all(axis=1)]
+
+
+def _points(d):
+    return np.array(list(d.values()) if isinstance(d, dict) else d, float).reshape(-1, 3)
+
+
+def _limits(pts):
+    lo, hi = pts.min(0), pts.max(0)
+    big = max((hi - lo).max(), 1.0)
+    pad = np.maximum(PAD * big, (MIN_SPAN * big - (hi - lo)) / 2)
+    return lo - pad, hi + pad
+
+
+def _place(fig, axes, cax, lo, hi, n_title) -> float:
+    """Size the figure and place the views at one scale (stacked or side by side, whichever
+    is larger), with the limits ``lo``, ``hi`` (mm, global x y z), and the colour bar; the
+    scale in inches per mm."""
+    (_, i, j), (_, _, k) = VIEWS
+    span = hi - lo
+    ex, ez, ey = span[i], span[j], span[k]
+    (W, H), (gw, gh) = VIEWS_IN, GAP_IN
+    stacked = min(W / ex, (H - gh) / (ez + ey))
+    beside = min((W - gw) / (2 * ex), H / max(ez, ey))
+    s = max(stacked, beside)
+    if stacked >= beside:
+        w, h = ex * s, ez * s + gh + ey * s
+        boxes = [(0, ey * s + gh, ex * s, ez * s), (0, 0, ex * s, ey * s)]
+    else:
+        w, h = 2 * ex * s + gw, max(ez, ey) * s
+        boxes = [(0, h - ez * s, ex * s, ez * s), (ex * s + gw, h - ey * s, ex * s, ey * s)]
+    m = MARGIN_IN
+    fw, fh = m["left"] + w + m["right"], m["bottom"] + h + m["top"] + 0.25 * n_title
+    fig.set_size_inches(fw, fh)
+    for ax, (x, y, bw, bh), (_, a, b) in zip(axes, boxes, VIEWS):
+        ax.set_position(((m["left"] + x) / fw, (m["bottom"] + y) / fh, bw / fw, bh / fh))
+        ax.set_xlim(lo[a], hi[a])
+        ax.set_ylim(lo[b], hi[b])
+        ax.set_aspect("equal", adjustable="box")
+    cax.set_position(((m["left"] + w + 0.35) / fw, m["bottom"] / fh, 0.15 / fw, h / fh))
+    return s
+
+
+def _fit_text(fig, axes, lo, hi):
+    """The limits widened so that every label lies inside its view."""
+    renderer = fig.canvas.get_renderer()
+    lo, hi = lo.copy(), hi.copy()
+    gap = 0.01 * (hi - lo).max()
+    for ax, (_, i, j) in zip(axes, VIEWS):
+        for t in ax.texts:
+            if t.get_text():
+                box = t.get_window_extent(renderer).transformed(ax.transData.inverted())
+                lo[[i, j]] = np.minimum(lo[[i, j]], np.array([box.x0, box.y0]) - gap)
+                hi[[i, j]] = np.maximum(hi[[i, j]], np.array([box.x1, box.y1]) + gap)
+    return lo, hi
+
+
+def _separate(fig, axes, tries=6):
+    """Labels moved a line further from their point (up or down) while they overlap one
+    placed before them."""
+    renderer = fig.canvas.get_renderer()
+    for ax in axes:
+        placed: list = []
+        for t in (t for t in ax.texts if t.get_text()):
+            step = (1 if t.get_va() == "bottom" else -1) * 1.2 * t.get_fontsize()
+            for _ in range(tries):
+                box = t.get_window_extent(renderer)
+                if not any(box.overlaps(b) for b in placed):
+                    break
+                t.xyann = (t.xyann[0], t.xyann[1] + step)
+            placed.append(t.get_window_extent(renderer))
+
+
+def _draw_arrows(ax, view, arrows):
+    """Force arrows ending at their point, each labelled beyond its tail (the longest tail of
+    the arrows along it) in the view where it is longest (the first of equals); a force
+    nearly along the line of sight as ⊙ / ⊗."""
+    _, i, j = VIEWS[view]
+    out = np.cross(np.eye(3)[i], np.eye(3)[j])
+    placed: list = []
+    for a, v, f, sigma, colour in sorted(arrows, key=lambda r: -np.linalg.norm(r[1])):
+        v2 = v[[i, j]]
+        if not np.linalg.norm(v):
+            if view == 0:
+                ax.scatter(*a[[i, j]], s=60, color=colour, zorder=4)
+                ax.annotate(newtons(0.0, sigma), a[[i, j]], xytext=(0, 12), zorder=6,
+                            textcoords="offset points", color=colour, fontsize=8,
+                            bbox=_LABEL_BOX, ha="center", va="bottom")
+            continue
+        if np.linalg.norm(v2) < 0.15 * np.linalg.norm(v):
+            into = v @ out < 0
+            ax.scatter(*a[[i, j]], s=90, fc="none", ec=colour, lw=1.5, zorder=4)
+            ax.scatter(*a[[i, j]], s=25 if into else 6, marker="x" if into else "o",
+                       color=colour, lw=1.5, zorder=4)
+            continue
+        tail = a[[i, j]] - v2
+        ax.annotate("", a[[i, j]], tail, zorder=4, arrowprops=dict(
+            arrowstyle="-|>", color=colour, lw=2, mutation_scale=16, shrinkA=0, shrinkB=0))
+        lengths = [np.linalg.norm(v[[c, d]]) for _, c, d in VIEWS]
+        if view != int(np.argmax(np.round(lengths, 9))):
+            continue
+        d = -v2 / np.linalg.norm(v2)
+        tail = a[[i, j]] - max((w for b, w, *_ in arrows if np.allclose(a, b, atol=1e-3)
+                                and w @ v > 0.95 * np.linalg.norm(w) * np.linalg.norm(v)),
+                               key=np.linalg.norm)[[i, j]]
+        near = sum(np.linalg.norm(tail - t) < 0.05 * np.linalg.norm(v2) for t in placed)
+        placed.append(tail)
+        align = _align(d)
+        if align["ha"] == "center":
+            x0, x1 = ax.get_xlim()
+            where = (tail[0] - x0) / (x1 - x0)
+            align["ha"] = "right" if where > 2 / 3 else "left" if where < 1 / 3 else "center"
+        shift = 5 * d + np.array([0.0, 12.0 * near * (1 if d[1] >= 0 else -1)])
+        ax.annotate(newtons(float(np.linalg.norm(f)), sigma), tail, xytext=shift,
+                    textcoords="offset points", color=colour, fontsize=8, bbox=_LABEL_BOX,
+                    zorder=6, **align)
+
+
+def _label_side(backbone, L, X, xyz, i, j, arrows):
+    """The unit direction (in the view) in which a marker's name goes: away from the rod (for
+    a marker off it), else on the side a force nearby points to (its tail and label are on
+    the other), else below."""
+    b = _finite(backbone)
+    if len(b) < 3:
+        return np.array([0.0, -1.0])
+    idx = (int(round(X / L * (len(b) - 1))) if X is not None
+           else int(np.argmin(np.linalg.norm(b - xyz, axis=1))))
+    idx = min(max(idx, 1), len(b) - 2)
+    away = (xyz - b[idx])[[i, j]]
+    if np.linalg.norm(away) > 0.02 * L * 1e3:
+        return away / np.linalg.norm(away)
+    t = (b[idx + 1] - b[idx - 1])[[i, j]]
+    n = (np.array([-t[1], t[0]]) / np.linalg.norm(t) if np.linalg.norm(t) > 1e-9
+         else np.array([0.0, -1.0]))
+    pull = sum((v[[i, j]] for a, v, *_ in arrows
+                if np.linalg.norm(a - xyz) < 0.05 * L * 1e3), np.zeros(2))
+    toward = pull if np.linalg.norm(pull) > 1e-9 else np.array([0.0, -1.0])
+    return n if n @ toward >= 0 else -n
+
+
+def _align(d) -> dict:
+    """Text alignment for a label placed from a point in the direction d."""
+    if abs(d[0]) > abs(d[1]):
+        return dict(ha="left" if d[0] > 0 else "right", va="center")
+    return dict(ha="center", va="bottom" if d[1] > 0 else "top")
+
+
+def _tension_bar(fig, cax, norm, tendons):
+    """The tension colour bar (N) with the tendons' names at their tensions."""
+    bar = fig.colorbar(ScalarMappable(norm, TENSION_CMAP), cax=cax)
+    bar.set_label("tendon tension (N)")
+    groups: list[list] = []
+    for name, T, _ in sorted((t for t in tendons if t[1] > 0), key=lambda t: t[1]):
+        if groups and T - groups[-1][0] < 0.04 * norm.vmax:
+            groups[-1][1].append(name)
+        else:
+            groups.append([T, [name]])
+    names = cax.secondary_yaxis("left")
+    names.set_yticks([T for T, _ in groups], [", ".join(ns) for _, ns in groups], fontsize=8)
+
+
+def _legend(fig, axes, tendons, markers, measured, loads):
+    h = [Line2D([], [], color=REST, ls="--", label="unloaded rod"),
+         Line2D([], [], color="black", lw=2.5, label="backbone"),
+         Line2D([], [], color="black", marker="s", ls="none", label="clamped base")]
+    if markers:
+        h.append(Line2D([], [], marker="o", mfc="white", mec="black", ls="none",
+                        label="markers"))
+    if measured:
+        h.append(Line2D([], [], marker="x", color=MEASURED, mew=1.8, ls="none",
+                        label="measured markers"))
+    if any(T > 0 for _, T, _ in tendons):
+        h.append(Line2D([], [], color=TENSION_CMAP(0.7), label="tendon (colour: tension)"))
+    if any(T <= 0 for _, T, _ in tendons):
+        h.append(Line2D([], [], color=SLACK, label="slack tendon"))
+    for colour, what in ((KNOWN, "known force"), (ESTIMATED, "estimated force (± 1 σ)")):
+        if any(c == colour for *_, c in loads):
+            h.append(Line2D([], [], color=colour, lw=2, marker=">", label=what))
+    left, bottom, right, _ = _extent(axes)
+    ncol = 4 if (right - left) * fig.get_figwidth() > 5 else 2
+    fig.legend(handles=h, loc="upper center", ncol=ncol, fontsize=8, frameon=False,
+               bbox_to_anchor=((left + right) / 2, bottom - 0.45 / fig.get_figheight()))
+
+
+def _extent(axes):
+    """(left, bottom, right, top) of the views, in figure fractions."""
+    boxes = [ax.get_position() for ax in axes]
+    return (min(b.x0 for b in boxes), min(b.y0 for b in boxes), max(b.x1 for b in boxes),
+            max(b.y1 for b in boxes))
+
+
+def _title(fig, axes, title, given):
+    left, _, _, top = _extent(axes)
+    top += 0.3 / fig.get_figheight()
+    if given:
+        fig.text(left, top, given, fontsize=9, va="bottom")
+        top += 0.25 / fig.get_figheight()
+    if title:
+        fig.text(left, top, title, fontsize=11, weight="bold", va="bottom")
+
+
+def _stamp(fig, axes, failed):
+    """NOT CONVERGED (and the reason) across the views, their frames red."""
+    for ax in axes:
+        for spine in ax.spines.values():
+            spine.set(color="red", lw=2)
+    left, bottom, right, top = _extent(axes)
+    width = (right - left) * fig.get_figwidth() * 72
+    x, y = (left + right) / 2, (bottom + top) / 2
+    fig.text(x, y, "NOT CONVERGED", fontsize=float(np.clip(width / (0.75 * 13), 14, 40)),
+             color="red", weight="bold", ha="center", va="bottom" if failed else "center",
+             alpha=0.8, zorder=10, bbox=dict(fc="white", ec="red", lw=2, alpha=0.5))
+    if failed:
+        fig.text(x, y - 0.08 / fig.get_figheight(), failed, color="red", ha="center", va="top",
+                 fontsize=float(np.clip(width / (0.55 * len(failed)), 9, 16)), zorder=10,
+                 bbox=dict(fc="white", ec="none", alpha=0.5))
 
 
 def sensitivity_single(rows, path):
@@ -169,7 +467,7 @@ def location_profile(result, path):
     """The tendon-length misfit over the X of a force of unknown location (each point the best
     magnitudes with the force held there), the estimate and its 1-σ band, as a PNG."""
     prof = result.extra["location_profile"]
-    X, misfit = np.asarray(prof["X"]), np.asarray(prof["misfit"]) * 1e6
+    X, misfit = np.asarray(prof["X"]), np.asarray(prof["misfit"]) * 1e3
     if X.ndim != 1:
         raise ValueError("a misfit profile is drawn for one force of unknown location")
     loc = [v for v in result.extra["locations"] if v is not None][0]
@@ -183,7 +481,7 @@ def location_profile(result, path):
     ax.axvline(loc * 1e3, color="tab:red", label=f"estimate X = {loc * 1e3:.1f} mm")
     ax.set_xlim(X.min() * 1e3, X.max() * 1e3)
     ax.set_xlabel("X where the force acts (mm from the base)")
-    ax.set_ylabel("RMS tendon-length misfit (µm)")
+    ax.set_ylabel("RMS tendon-length misfit (mm)")
     ax.set_title("Where does the force act? Tendon-length misfit over X")
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -194,28 +492,28 @@ def location_profile(result, path):
 
 def calibration(fit, path):
     """Per snapshot: the misfit after the fit and, with cross-validation, the error of its
-    prediction by the parameters fitted without it (markers in mm, tendon lengths in µm)."""
-    kinds = [(k, unit, scale) for k, unit, scale in (("marker", "mm", 1e3),
-                                                      ("displacement", "µm", 1e6))
-             if any(e[i] is not None for e in fit.snapshot_errors
-                    for i in [0 if k == "marker" else 1])]
+    prediction by the parameters fitted without it (marker and tendon-length errors in mm)."""
+    kinds = [(col, kind) for col, kind in enumerate(("marker", "displacement"))
+             if any(e[col] is not None for e in fit.snapshot_errors)]
     fig, axes = plt.subplots(len(kinds), 1, figsize=(7, 2.8 * len(kinds)), squeeze=False)
-    n = len(fit.snapshot_errors)
-    idx = np.arange(1, n + 1)
-    for ax, (kind, unit, scale) in zip(axes[:, 0], kinds):
-        col = 0 if kind == "marker" else 1
+    idx = np.arange(1, len(fit.snapshot_errors) + 1)
+    for ax, (col, kind) in zip(axes[:, 0], kinds):
         fitted = np.array([np.nan if e[col] is None else e[col] for e in fit.snapshot_errors])
         width = 0.4 if fit.crossval else 0.8
-        ax.bar(idx - (width / 2 if fit.crossval else 0), fitted * scale, width,
+        ax.bar(idx - (width / 2 if fit.crossval else 0), fitted * 1e3, width,
                color="tab:blue", label="after the fit (every snapshot)")
+        top = np.nanmax(np.append(fitted, 0.0))
         if fit.crossval:
             left = np.array([np.nan if getattr(c, f"{kind}_error") is None
                              else getattr(c, f"{kind}_error") for c in fit.crossval])
-            ax.bar(idx + width / 2, left * scale, width, color="tab:orange",
+            ax.bar(idx + width / 2, left * 1e3, width, color="tab:orange",
                    label="predicted, fitted without it")
-        ax.set_ylabel(f"RMS {'marker' if kind == 'marker' else 'tendon-length'} error ({unit})")
+            top = max(top, np.nanmax(np.append(left, 0.0)))
+        if top > 0:
+            ax.set_ylim(0.0, 1.3 * top * 1e3)
+        ax.set_ylabel(f"RMS {'marker' if kind == 'marker' else 'tendon-length'} error (mm)")
         ax.set_xticks(idx)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="upper center", ncol=2)
     axes[-1, 0].set_xlabel("snapshot")
     axes[0, 0].set_title("Calibration: per-snapshot error" +
                          (" and leave-one-out prediction" if fit.crossval else ""))

@@ -1,5 +1,6 @@
-"""CSV files of tendon readings: reading a log, estimating over it, writing the
-result atomically."""
+"""CSV files of readings — a log of tendon readings, calibration snapshots — checked by the
+rules of :mod:`tendonsense.inputs`, and the estimation output written atomically. No JAX: a
+file is checked before any solver starts (estimation over a log: :mod:`tendonsense.logs`)."""
 
 from __future__ import annotations
 
@@ -8,15 +9,17 @@ import io
 import math
 import os
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from .estimation import Noise, Unknown, problem
-from .tracking import SampleEstimate
+from .inputs import Unknown, displacement_error, rest_lengths, tension_error
 from .robot import Robot
+
+if TYPE_CHECKING:
+    from .tracking import SampleEstimate
 
 AXES = ("x", "y", "z")
 
@@ -53,6 +56,7 @@ class Columns:
     header: list[str]
     measured: list[str]
     markers: list[str]
+    rest: np.ndarray = field(default_factory=lambda: np.zeros(0))  # tendons' lengths, m
 
 
 def parse_header(header: Sequence[str], robot: Robot, source) -> Columns:
@@ -80,15 +84,16 @@ def parse_header(header: Sequence[str], robot: Robot, source) -> Columns:
                                 f"displacement_<tendon> or marker_<marker>_x/_y/_z")
     if not measured:
         raise ReadingsError(f"{source}: no displacement_<tendon> column")
-    for name in measured:
-        if f"tension_{name}" not in header:
-            raise ReadingsError(f"{source}: displacement_{name} has no tension_{name} column")
+    missing = [f"tension_{n}" for n in tendons if f"tension_{n}" not in header]
+    if missing:
+        raise ReadingsError(f"{source}: no column {', '.join(missing)}: every tendon's tension "
+                            f"is a reading (a slack tendon is a column of zeros)")
     marker_names = [m for m in markers if f"marker_{m}_x" in header]
     for m in marker_names:
         for a in AXES:
             if f"marker_{m}_{a}" not in header:
                 raise ReadingsError(f"{source}: marker {m!r} needs columns _x, _y and _z")
-    return Columns(header, measured, marker_names)
+    return Columns(header, measured, marker_names, rest_lengths(robot))
 
 
 def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sample:
@@ -106,8 +111,11 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
             if not math.isfinite(v):
                 error = f"column {col}: {'missing' if not text.strip() else repr(text)} value"
                 break
-            if col.startswith("tension_") and v < 0:
-                error = f"column {col}: negative tension {v:g} N (a tendon cannot push)"
+            kind, _, name = col.partition("_")
+            error = (tension_error(name, v) if kind == "tension" else displacement_error(
+                name, v, columns.rest[robot.tendon_names.index(name)])
+                if kind == "displacement" else None)
+            if error:
                 break
             values[col] = v
     if error:
@@ -129,61 +137,106 @@ def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sampl
     columns = parse_header(rows[0], robot, path)
     samples = [parse_row(i, raw, columns, robot) for i, raw in enumerate(rows[1:], start=1)
                if any(c.strip() for c in raw)]
+    if not samples:
+        raise ReadingsError(f"{path}: no data rows below the header")
     return columns.measured, samples
 
 
-def estimate_readings(robot: Robot, measured: Sequence[str], samples: Sequence[Sample],
-                      unknowns: Sequence[Unknown], point_forces=(), noise: Noise = Noise(),
-                      progress=None) -> list[SampleEstimate | None]:
-    """Estimate every good sample of a log in order, each warm-started from the last good
-    one (:class:`tendonsense.online.OnlineEstimator`); a bad sample gives None.
-    ``progress(done, total)`` is called as samples complete."""
-    from .online import OnlineEstimator
-    from .tracking import RESCUE_BUDGET
-    online = OnlineEstimator(problem(robot, measured, unknowns, point_forces), noise,
-                             rescue_budget=RESCUE_BUDGET)  # the same result on any machine
+DESCRIPTIVE = ("source", "note", "comment", "time", "id", "name")
+
+
+class SnapshotError(ValueError):
+    """Snapshots that cannot identify what was asked; the message says why."""
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """One static pose: tensions (N, per tendon), an optional known global point load, and
+    what was measured: marker positions (m, global) and/or tendon length changes (m)."""
+
+    tensions: dict[str, float]
+    markers: dict[str, np.ndarray] = field(default_factory=dict)
+    load: tuple[float, tuple[float, float, float]] | None = None
+    displacements: dict[str, float] = field(default_factory=dict)
+
+
+
+
+def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
+    """SNAPSHOTS.csv: one row per static snapshot (tensions, an optional known load, marker
+    positions and/or tendon length changes)."""
+    path = Path(path)
+    raw = read_csv_rows(path, SnapshotError)
+    header = raw[0] if raw else []
+    rows = [dict(zip(header, r + [""] * (len(header) - len(r))))
+            for r in raw[1:] if any(c.strip() for c in r)]
+    if not rows:
+        raise SnapshotError(f"{path}: no snapshot rows")
+    load_cols = ("load_X", "load_fx", "load_fy", "load_fz")
+    markers = [m for m in robot.marker_names if f"marker_{m}_x" in header]
+    measured = [n for n in robot.tendon_names if f"displacement_{n}" in header]
+    for col in header:
+        kind, _, name = col.partition("_")
+        ok = (col in DESCRIPTIVE or col in load_cols
+              or (kind in ("tension", "displacement") and name in robot.tendon_names)
+              or (kind == "marker" and name[:-2] in markers and name[-2:] in ("_x", "_y", "_z")))
+        if not ok:
+            raise SnapshotError(f"{path}: column {col!r} is not tension_<tendon>, "
+                                f"displacement_<tendon>, load_X/_fx/_fy/_fz or "
+                                f"marker_<marker>_x/_y/_z")
+    missing = [f"tension_{n}" for n in robot.tendon_names if f"tension_{n}" not in header]
+    if missing:
+        raise SnapshotError(f"{path}: no column {', '.join(missing)}: every tendon's tension "
+                            f"is a reading (a slack tendon is a column of zeros)")
+    rest = rest_lengths(robot)
+    if not markers and not measured:
+        raise SnapshotError(f"{path}: no marker_<name>_x/_y/_z or displacement_<tendon> "
+                            f"columns: nothing to fit to")
     out = []
-    for k, s in enumerate(samples):
-        out.append(None if s.error else online.update(s.displacements, s.tensions))
-        if progress and (k % 100 == 99 or k == len(samples) - 1):
-            progress(k + 1, len(samples))
+    for i, row in enumerate(rows, start=1):
+        def num(col, required=True):
+            text = (row.get(col) or "").strip()
+            if not text:
+                if required:
+                    raise SnapshotError(f"{path}: snapshot row {i}: column {col} is missing")
+                return None
+            try:
+                v = float(text)
+            except ValueError:
+                v = math.nan
+            if not math.isfinite(v):
+                raise SnapshotError(f"{path}: snapshot row {i}: column {col}: {text!r} is "
+                                    f"not a finite number")
+            return v
+        tensions = {n: num(f"tension_{n}") for n in robot.tendon_names}
+        lengths = {n: v for n in measured
+                   if (v := num(f"displacement_{n}", required=False)) is not None}
+        for error in ([tension_error(n, v) for n, v in tensions.items()]
+                      + [displacement_error(n, v, rest[robot.tendon_names.index(n)])
+                         for n, v in lengths.items()]):
+            if error:
+                raise SnapshotError(f"{path}: snapshot row {i}: {error}")
+        pos = {}
+        for m in markers:  # a marker is measured in a row when any of its cells is filled
+            cols = [f"marker_{m}_{a}" for a in "xyz"]
+            if any((row.get(c) or "").strip() for c in cols):
+                pos[m] = np.array([num(c) for c in cols])
+        if not pos and not lengths:
+            raise SnapshotError(f"{path}: snapshot row {i}: no marker position and no tendon "
+                                f"displacement: nothing measured")
+        load_vals = [num(c, required=False) if c in row else None for c in load_cols]
+        if all(v is None for v in load_vals):
+            load = None
+        elif any(v is None for v in load_vals):
+            raise SnapshotError(f"{path}: snapshot row {i}: a load needs load_X, load_fx, "
+                                f"load_fy and load_fz")
+        else:
+            if not 0 <= load_vals[0] <= robot.rod.length:
+                raise SnapshotError(f"{path}: snapshot row {i}: load_X = {load_vals[0]:g} is "
+                                    f"outside the rod")
+            load = (load_vals[0], tuple(load_vals[1:]))
+        out.append(Snapshot(tensions, pos, load, lengths))
     return out
-
-
-def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point_forces=(),
-                    noise: Noise = Noise(), source="<stdin>", on_skip=None,
-                    on_sample=None) -> tuple[int, int]:
-    """Live estimation: read READINGS.csv lines from ``lines`` (an iterable of text lines) and
-    write each output row to ``out`` as soon as it is estimated, flushed; then call
-    ``on_sample(sample, estimate or None)`` (e.g. a :class:`~tendonsense.view.Viewer`'s push).
-    Returns (rows, converged). Ends at the end of the input; the caller handles an interrupt
-    (every row written so far is complete)."""
-    from .online import OnlineEstimator
-    reader = csv.reader(lines)
-    try:
-        header = next(reader)
-    except StopIteration:
-        raise ReadingsError(f"{source}: no header row") from None
-    columns = parse_header(header, robot, source)
-    online = OnlineEstimator(problem(robot, columns.measured, unknowns, point_forces), noise)
-    writer = csv.writer(out)
-    with_shape = bool(columns.markers)
-    writer.writerow(output_header(robot, len(unknowns), with_shape, located(unknowns)))
-    out.flush()
-    rows = good = 0
-    for i, raw in enumerate(reader, start=1):
-        if not any(c.strip() for c in raw):
-            continue
-        s = parse_row(i, raw, columns, robot)
-        r = None if s.error else online.update(s.displacements, s.tensions)
-        if r is None and on_skip:
-            on_skip(s)
-        writer.writerow(output_row(robot, s, r, len(unknowns), with_shape, located(unknowns)))
-        out.flush()
-        if on_sample is not None:
-            on_sample(s, r)
-        rows, good = rows + 1, good + bool(r is not None and r.converged)
-    return rows, good
 
 
 def located(unknowns: Sequence[Unknown]) -> tuple[int, ...]:
@@ -251,12 +304,44 @@ def write_csv_atomic(path: str | Path, header, rows):
 def write_text_atomic(path: str | Path, text: str):
     """Write next to the destination and move into place: a reader never sees a partial
     file, and a failed run leaves none."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", newline="") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
+    with AtomicText(path) as out:
+        out.write(text)
+        out.commit()
+
+
+class AtomicText(io.TextIOWrapper):
+    """A text file (UTF-8) written next to ``path`` and moved into place by :meth:`commit`;
+    closed without a commit, it leaves nothing. Errors name ``path``, not the hidden file."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        try:
+            fd, self.tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", dir=self.path.parent)
+        except OSError as exc:
+            raise OSError(f"{path}: cannot write ({exc.strerror})") from None
+        super().__init__(os.fdopen(fd, "wb"), encoding="utf-8", newline="")
+        self.committed = False
+
+    def commit(self):
+        self.flush()
+        try:
+            os.replace(self.tmp, self.path)
+        except OSError as exc:
+            raise OSError(f"{self.path}: cannot write ({exc.strerror})") from None
+        self.committed = True
+
+    def close(self):
+        super().close()
+        if not self.committed and os.path.exists(self.tmp):
+            os.unlink(self.tmp)
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def __getattr__(name: str):
+    """The estimation over a log moved to :mod:`tendonsense.logs`; old imports keep working."""
+    if name in ("estimate_readings", "stream_readings"):
+        from . import logs
+        return getattr(logs, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

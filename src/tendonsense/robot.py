@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -451,3 +452,293 @@ def _vec(v) -> str:
 
 def _q(s: str) -> str:
     return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+#: the first line of the header :func:`fitted_toml` writes, as the ``identify`` command words it
+FITTED_HEADER_MARK = "# fitted by tendonsense identify"
+
+
+def fitted_toml(text: str, fitted: Robot, header: Sequence[str]) -> str:
+    """The robot file ``text`` with the values of ``fitted`` written in place: ``[rod]``
+    ``young_modulus``, ``density``, ``poisson_ratio`` and each ``[[tendon]]``'s ``friction``
+    (matched by the tendon's ``name``) become ``repr(float(value))``; every other byte -- keys,
+    comments (also a trailing one on a rewritten line, kept at its column when it was
+    aligned), blank lines, order -- stays as it was. A value already equal to the fitted one
+    keeps its spelling. A key the file leaves out is added after the last key line of its
+    table unless the fitted value is the loader's default (friction 0). ``header`` lines go
+    on top as ``# `` comments and a blank line, replacing the block of an earlier fit (comment
+    lines from a first line starting with :data:`FITTED_HEADER_MARK`).
+
+    The result is checked: it parses to the original file's data with exactly those values
+    changed. Raises :class:`RobotFileError` when ``text`` is not valid TOML, when its tendons
+    are not those of ``fitted``, or when a value cannot be rewritten in place (e.g. one given
+    in an inline table).
+    """
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise RobotFileError(f"robot file: not valid TOML ({exc})") from None
+    nl = "\r\n" if "\r\n" in text else "\n"
+
+    # the values to write: key path -> (value, the loader's default or None)
+    rod = fitted.rod
+    wanted: dict[tuple, tuple[float, float | None]] = {
+        ("rod", "young_modulus"): (rod.young_modulus, None),
+        ("rod", "poisson_ratio"): (rod.poisson_ratio, None),
+        ("rod", "density"): (rod.density, None)}
+    entries = data.get("tendon", [])
+    if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+        raise RobotFileError("robot file: tendon: must be an array of tables ([[tendon]])")
+    in_file = [e.get("name") for e in entries]
+    by_name = {t.name: t for t in fitted.tendons}
+    if sorted(map(str, in_file)) != sorted(by_name) or len(set(in_file)) != len(in_file):
+        raise RobotFileError(f"robot file: its tendons {in_file} are not those of the fitted "
+                             f"robot {sorted(by_name)}")
+    for i, name in enumerate(in_file):
+        wanted[("tendon", i, "friction")] = (by_name[name].friction, 0.0)  # as _parse_tendon
+
+    def lookup(tree, path):
+        for k in path:
+            if isinstance(tree, dict) and k in tree or isinstance(tree, list) and isinstance(
+                    k, int) and k < len(tree):
+                tree = tree[k]
+            else:
+                return None
+        return tree
+
+    def same(old, value):
+        return isinstance(old, (int, float)) and not isinstance(old, bool) and old == float(value)
+
+    try:
+        stmts = _toml_statements(text)
+    except (IndexError, ValueError):
+        raise RobotFileError("robot file: cannot follow its layout to rewrite it in place") from None
+    keys = [st for st in stmts if st["kind"] == "key"]
+    n = len(text)
+    edits = []  # (start, end, replacement) in the original text
+    for path, (value, default) in wanted.items():
+        value = float(value)
+        if not math.isfinite(value):
+            raise RobotFileError(f"fitted {'.'.join(map(str, path))} is {value}")
+        new = repr(value)
+        old = lookup(data, path)
+        if old is not None:
+            if same(old, value):
+                continue  # unchanged: keep the file's spelling
+            here = [st for st in keys if st["path"] == path]
+            if len(here) != 1:
+                raise RobotFileError(f"robot file: cannot rewrite {'.'.join(map(str, path))} "
+                                     f"in place (not a key line of its own)")
+            st = here[0]
+            vs, ve = st["value"]
+            after = ve
+            while after < n and text[after] == " ":
+                after += 1
+            if after < n and text[after] == "#" and after - ve >= 2:  # keep the comment column
+                edits.append((vs, after, new + " " * max(2, after - vs - len(new))))
+            else:
+                edits.append((vs, ve, new))
+            continue
+        if default is not None and value == default:
+            continue  # the loader's default: no line needed
+        table, key = path[:-1], path[-1]
+        # the last key line inside that table, written where the new key can follow it
+        at = [st for st in keys
+              if st["path"][:len(table)] == table and table[:len(st["table"])] == st["table"]]
+        if at:
+            st = at[-1]
+            rel = path[len(st["table"]):]
+            indent = st["indent"]
+        else:
+            at = [st for st in stmts if st["kind"] == "table" and st["table"] == table]
+            if not at:
+                raise RobotFileError(f"robot file: no table to add {'.'.join(map(str, path))} to")
+            st, rel, indent = at[-1], (key,), ""
+        line = indent + ".".join(k if k and all(c in _BARE_KEY for c in k) else _q(k)
+                                 for k in rel) + " = " + new
+        end = st["end"]
+        edits.append((end, end, line + nl if text[end - 1:end] == "\n" else nl + line))
+
+    out, pos = [], 0
+    for start, end, rep in sorted(edits, key=lambda e: e[0]):
+        out += [text[pos:start], rep]
+        pos = end
+    body = "".join(out) + text[pos:]
+
+    # an earlier fit's header: its comment lines and the blank line after them
+    pos = 0
+    if body.startswith(FITTED_HEADER_MARK):
+        while pos < len(body) and body[pos:].lstrip(" \t").startswith("#"):
+            eol = body.find("\n", pos)
+            pos = len(body) if eol < 0 else eol + 1
+        eol = body.find("\n", pos)
+        if eol >= 0 and not body[pos:eol].strip():
+            pos = eol + 1
+    body = body[pos:]
+    lines = []
+    for item in header:
+        for part in str(item).splitlines() or [""]:
+            part = "".join(c if c == "\t" or (ord(c) >= 0x20 and c != "\x7f") else "?"
+                           for c in part).rstrip()
+            lines.append("# " + part if part else "#")
+    result = (nl.join(lines) + nl + nl + body) if lines else body
+
+    expected = tomllib.loads(text)  # a fresh copy of the original data
+    for path, (value, default) in wanted.items():
+        old = lookup(expected, path)
+        if old is None and default is not None and float(value) == default:
+            continue
+        if old is not None and same(old, value):
+            continue
+        lookup(expected, path[:-1])[path[-1]] = float(value)
+    try:
+        got = tomllib.loads(result)
+    except tomllib.TOMLDecodeError:
+        got = None
+    if got != expected:
+        raise RobotFileError("robot file: rewriting it in place did not give the fitted values "
+                             "(an unusual layout); write it with robot_to_toml instead")
+    return result
+
+
+_BARE_KEY = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_-")
+
+
+def _toml_statements(s: str) -> list[dict]:
+    """The statements of valid TOML text ``s`` in order, each a dict: ``kind`` ("key", "table",
+    "blank" or "comment"), ``start`` and ``end`` (offsets of its first character and past its
+    line end), ``table`` (the path of the table it is in or opens: keys, and for an array of
+    tables the index of the entry, e.g. ``("tendon", 2)``); a key line also has ``path`` (the
+    full key path), ``value`` (the offsets of its value) and ``indent``."""
+    n = len(s)
+
+    def ws(i):
+        while i < n and s[i] in " \t":
+            i += 1
+        return i
+
+    def gap(i):  # whitespace, newlines and comments (inside arrays)
+        while True:
+            i = ws(i)
+            if i < n and s[i] == "#":
+                while i < n and s[i] != "\n":
+                    i += 1
+            if i < n and s[i] in "\r\n":
+                i += 1
+            else:
+                return i
+
+    def line_end(i):
+        i = ws(i)
+        if i < n and s[i] == "#":
+            while i < n and s[i] != "\n":
+                i += 1
+        if i < n and s[i] == "\r":
+            i += 1
+        if i < n and s[i] == "\n":
+            return i + 1
+        if i < n:
+            raise ValueError(f"unexpected {s[i]!r} at offset {i}")
+        return i
+
+    def string_end(i):
+        q = s[i]
+        if s.startswith(q * 3, i):
+            j = i + 3
+            while True:
+                if q == '"' and s[j] == "\\":
+                    j += 2
+                elif s[j] == q:
+                    k = j
+                    while k < n and s[k] == q:
+                        k += 1
+                    if k - j >= 3:
+                        return k
+                    j = k
+                else:
+                    j += 1
+        j = i + 1
+        while s[j] != q:
+            j += 2 if q == '"' and s[j] == "\\" else 1
+        return j + 1
+
+    def key(i):
+        parts = []
+        while True:
+            i = ws(i)
+            if s[i] in "\"'":
+                j = string_end(i)
+                parts.append(next(iter(tomllib.loads(s[i:j] + " = 0"))))
+            else:
+                j = i
+                while j < n and s[j] in _BARE_KEY:
+                    j += 1
+                if j == i:
+                    raise ValueError(f"no key at offset {i}")
+                parts.append(s[i:j])
+            i = ws(j)
+            if i < n and s[i] == ".":
+                i += 1
+            else:
+                return tuple(parts), i
+
+    def value(i):
+        c = s[i]
+        if c in "\"'":
+            return string_end(i)
+        if c in "[{":
+            close, i = "]" if c == "[" else "}", i + 1
+            while True:
+                i = gap(i)
+                if s[i] == close:
+                    return i + 1
+                if close == "}":
+                    i = ws(key(i)[1])
+                    if s[i] != "=":
+                        raise ValueError(f"no '=' at offset {i}")
+                    i = gap(i + 1)
+                i = gap(value(i))
+                if s[i] == ",":
+                    i += 1
+        j = i
+        while j < n and s[j] not in " \t\r\n,]}#":
+            j += 1
+        word = s[i:j]  # a local date and time may use a space: 1979-05-27 07:32:00
+        if (len(word) == 10 and word[4] == word[7] == "-" and s[j:j + 1] == " "
+                and s[j + 1:j + 2].isdigit()):
+            j += 1
+            while j < n and s[j] not in " \t\r\n,]}#":
+                j += 1
+        return j
+
+    out, table, counts, i = [], (), {}, 0
+    while i < n:
+        j = ws(i)
+        if j >= n or s[j] in "\r\n#":
+            end = line_end(j)
+            out.append(dict(kind="comment" if j < n and s[j] == "#" else "blank", start=i,
+                            end=end, table=table))
+        elif s[j] == "[":
+            array = s.startswith("[[", j)
+            path, k = key(j + (2 if array else 1))
+            close = "]]" if array else "]"
+            if not s.startswith(close, k):
+                raise ValueError(f"no {close!r} at offset {k}")
+            if array:
+                counts[path] = counts.get(path, 0) + 1
+                table = path + (counts[path] - 1,)
+            else:
+                table = path
+            end = line_end(k + len(close))
+            out.append(dict(kind="table", start=i, end=end, table=table))
+        else:
+            path, k = key(j)
+            if s[k] != "=":
+                raise ValueError(f"no '=' at offset {k}")
+            vs = ws(k + 1)
+            ve = value(vs)
+            end = line_end(ve)
+            out.append(dict(kind="key", start=i, end=end, table=table, path=table + path,
+                            value=(vs, ve), indent=s[i:j]))
+        i = end
+    return out

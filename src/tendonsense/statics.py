@@ -301,7 +301,7 @@ def _derivatives_fn(structure: Structure, measured: tuple[int, ...], wrt: tuple[
         cut = np.cumsum([v.shape[1] for v in flat.values()])[:-1]
         return {k: s.reshape(Rt[k].shape) for k, s in zip(flat, jnp.split(sol, cut, axis=1))}
 
-    return jax.jit(jac)
+    return Program(jac, "derivatives", (structure, measured, wrt))
 
 
 def derivatives(structure: Structure, values: Values, measured: tuple[int, ...], x,

@@ -21,9 +21,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import linalg, tendons
-from .compiled import FirstCallLocked
+from .compiled import Program
 from .estimation import Noise, Problem, estimate_problem
-from .forward import model_for, tendon_vector
+from .forward import model_for
+from .inputs import tendon_vector
 from .kinematics import poses, positions
 from .model import VALUE_NAMES, Structure, points_at
 from .robot import Robot
@@ -290,7 +291,8 @@ def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
                               (drives, varied))
         return out
 
-    return FirstCallLocked(jax.jit(track))
+    return Program(track, "tracker", (structure, measured, n_z, tension_columns, refine_every,
+                                       step_tol))
 
 
 @lru_cache(maxsize=CACHE_SIZE)
@@ -305,7 +307,8 @@ def stepper(structure: Structure, measured: tuple[int, ...], n_z: int,
         carry, row = step(carry, d, p, unknowns, values)
         return carry, jnp.concatenate([jnp.ravel(a).astype(float) for a in row])
 
-    return jax.jit(init), jax.jit(packed)
+    key = (structure, measured, n_z, tension_columns, refine_every)
+    return Program(init, "stepper_init", key), Program(packed, "stepper_step", key)
 
 
 def unpack_row(flat: np.ndarray, n_x: int, n_m: int, n_markers: int, n_t: int) -> Track:
@@ -368,7 +371,21 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
     on its own from the straight rod (load continuation, a bounded budget once an earlier
     sample has converged); a bad reading (non-finite, negative tension, a tendon pulled in
     beyond its length) is marked with the reason. ``progress(done, total)`` is called per
-    chunk."""
+    chunk (:func:`series_chunks` hands over each chunk's estimates as it finishes)."""
+    n = len(displacements)
+    out: list[SampleEstimate | None] = [None] * n
+    for first, estimates in series_chunks(prob, displacements, tensions, noise, chunk, values):
+        out[first:first + len(estimates)] = estimates
+        if progress:
+            progress(first + len(estimates), n)
+    return out
+
+
+def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
+                  tensions: Sequence[Mapping[str, float]], noise: Noise = Noise(),
+                  chunk: int = 100, values: Mapping[str, object] | None = None):
+    """:func:`estimate_series` as it goes: yields ``(first, estimates)`` for consecutive
+    samples ``first, first + 1, …`` as each chunk is done."""
     robot, model = prob.robot, prob.model
     n = len(displacements)
     if prob.located:  # sample by sample: X searched first, then followed (and after failures)
@@ -376,12 +393,10 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
             raise ValueError("values per sample are not available with located forces")
         from .online import OnlineEstimator
         online = OnlineEstimator(prob, noise, rescue_budget=RESCUE_BUDGET)
-        out = []
-        for k, (d, t) in enumerate(zip(displacements, tensions)):
-            out.append(online.update(d, t))
-            if progress and ((k + 1) % chunk == 0 or k + 1 == n):
-                progress(k + 1, n)
-        return out
+        for first in range(0, n, chunk):
+            yield first, [online.update(d, t) for d, t in
+                          zip(displacements[first:first + chunk], tensions[first:first + chunk])]
+        return
     for what, readings in (("tension", tensions), ("displacement", displacements)):
         for name in {name for r in readings for name in r}:
             if name not in robot.tendon_names:
@@ -392,22 +407,19 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
     out: list[SampleEstimate | None] = [None] * n
     for k in range(n):
         try:
-            T[k] = tendon_vector(robot, tensions[k], "tension")
-            Y[k] = tendon_vector(robot, displacements[k], "displacement")
-            error = prob.reading_error(T[k], Y[k])
-        except ValueError as exc:  # a non-finite reading
-            T[k], Y[k], error = 0.0, 0.0, str(exc)
-        if error:
-            out[k] = SampleEstimate.failed(prob, f"bad value: {error}")
+            T[k], Y[k] = prob.readings(displacements[k], tensions[k])
+        except ValueError as exc:
+            out[k] = SampleEstimate.failed(prob, f"bad value: {exc}")
     tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.any(T != 0, axis=0)))))
     track = tracker(model.structure, prob.measured, prob.n_z, tcols, 4)
     meas = list(prob.measured)
     valid = [k for k in range(n) if out[k] is None]
-    x0, seen_good = None, False
+    x0, seen_good, done = None, False, 0
     for start in range(0, len(valid), chunk):
         idx = valid[start:start + chunk]
-        if x0 is None:  # from the straight rod; a sample that fails falls back below
-            x0 = np.zeros(model.nq + prob.n_z)
+        if x0 is None:  # the first sample solved from the straight rod (square problems)
+            x0 = _first_solution(prob, T[idx[0]], Y[idx[0], meas], model.values._replace(
+                **{name: v[idx[0]] for name, v in varied.items()}))
         # a fixed scan length (padded with the last sample) keeps one compiled tracker
         rows = list(idx) + [idx[-1]] * (chunk - len(idx))
         drives = stacked_drives(prob, T[rows], Y[rows][:, meas])
@@ -427,11 +439,23 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
             seen_good = seen_good or out[k].converged
         good = [out[k].x for k in idx if out[k].converged]
         x0 = good[-1] if good else x0
-        if progress:
-            progress(idx[-1] + 1, n)
-    if progress and not valid:
-        progress(n, n)
-    return out
+        end = idx[-1] + 1 if start + chunk < len(valid) else n
+        yield done, out[done:end]
+        done = end
+    if done < n:  # every sample bad
+        yield done, out[done:]
+
+
+def _first_solution(prob: Problem, T, targets, values) -> np.ndarray:
+    """A start for a series: its first sample solved from the straight rod with load
+    continuation (square problems; the straight rod itself for least squares, or if that
+    solve fails: the series' own fallback then takes over)."""
+    x0 = np.zeros(prob.model.nq + prob.n_z)
+    if len(prob.measured) != prob.n_z:
+        return x0
+    res = solve_system(prob.model.structure, values, prob.measured, prob.drive(T, targets),
+                       prob.unknowns, None)
+    return np.asarray(res.x) if bool(res.converged) else x0
 
 
 def band(dz_dm: np.ndarray, n_lengths: int, tensions: np.ndarray, noise: Noise) -> np.ndarray:

@@ -19,15 +19,12 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from functools import lru_cache
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .forward import model_for, solve
-from .kinematics import poses
-from .model import points_at
+from .kinematics import frames_fn
 from .robot import Robot
 
 #: redraws per second at most
@@ -74,17 +71,6 @@ class Shown:
     ok: bool = True
 
 
-@lru_cache(maxsize=8)
-def _geometry_fn(structure):
-    """Jitted poses at the backbone points and at the given X."""
-
-    def at(values, q, X):
-        _, g = poses(values, q, points_at(structure, values, X))
-        return g
-
-    return jax.jit(at)
-
-
 class Viewer:
     """A browser view of ``robot`` at http://HOST:PORT (127.0.0.1 unless ``host`` says
     otherwise; port 0 takes any free one, :attr:`port` tells). Push any result
@@ -109,7 +95,7 @@ class Viewer:
             raise ViewError(f"cannot serve the view on {host}:{port}: the port is taken")
         self.robot, self.model = robot, model_for(robot)
         self.port, self.host = port, host
-        self._geometry = _geometry_fn(self.model.structure)
+        self._geometry = frames_fn(self.model.structure)
         L = robot.rod.length
         self._X = np.linspace(0.0, L, 101)
         self._setup_scene(title or robot.name)

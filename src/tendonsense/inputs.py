@@ -1,0 +1,230 @@
+"""What a user gives a solver — tendon readings, known and unknown loads, sensor noise — and
+the one set of rules every path checks them by (command line, Python, logs, streams,
+calibration). No JAX: the command line checks everything before it starts a solver.
+
+The rules for a reading:
+- a tendon is named by the robot file; a value is a finite number;
+- a tension is ≥ 0 (a tendon cannot push); a slack tendon is a tension of 0, said explicitly
+  in a file (a ``tension_<name>`` column for every tendon), or by leaving the tendon out of a
+  command line or a Python mapping;
+- a tendon whose length change is measured needs its tension measured too;
+- a length change is smaller than the tendon's whole length (no tendon is pulled in or paid
+  out by more than it is long: a value in mm typed as m, for one).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from .robot import Robot
+
+#: a known point force: (X, (fx, fy, fz)) in the global frame, N
+PointForce = tuple[float, Sequence[float]]
+
+
+def finite(name: str, value) -> float:
+    """``value`` as a float, or a ValueError naming ``name``."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: not a number: {value!r}") from None
+    if not math.isfinite(v):
+        raise ValueError(f"{name}: must be finite, got {v}")
+    return v
+
+
+@lru_cache(maxsize=64)
+def rest_lengths(robot: Robot) -> np.ndarray:
+    """Every tendon's path length on the straight rod (l* of eq. 9), m (read-only)."""
+    L = robot.rod.length
+    out = np.zeros(len(robot.tendons))
+    for j, t in enumerate(robot.tendons):
+        X = np.linspace(0.0, L, 2) if t.continuous else np.asarray(t.disks, float)
+        path = t.offset(X, L) + X[:, None] * np.array([1.0, 0.0, 0.0])
+        out[j] = np.linalg.norm(np.diff(path, axis=0), axis=1).sum()
+    out.flags.writeable = False
+    return out
+
+
+def tension_error(name: str, T: float) -> str | None:
+    """Why tension ``T`` (N) of tendon ``name`` cannot be a reading, or None."""
+    if not math.isfinite(T):
+        return f"tension {name} = {T}: not a finite number"
+    if T < 0:
+        return f"tension {name} = {T:g} N is negative (a tendon cannot push; slack is 0)"
+    return None
+
+
+def displacement_error(name: str, y: float, rest: float) -> str | None:
+    """Why length change ``y`` (m) of a tendon ``rest`` m long cannot be a reading, or None."""
+    if not math.isfinite(y):
+        return f"displacement {name} = {y}: not a finite number"
+    if abs(y) >= rest:
+        way = "pulls in" if y < 0 else "pays out"
+        return (f"displacement {name} = {y:g} m {way} more than the tendon's whole length "
+                f"({rest:.3g} m; lengths are in metres)")
+    return None
+
+
+def tendon_vector(robot: Robot, values: Mapping[str, float] | None, what: str) -> np.ndarray:
+    """Per-tendon values from a {name: value} mapping (tendons not named: 0); names and
+    finiteness checked, nothing else."""
+    out = np.zeros(len(robot.tendons))
+    for name, v in (values or {}).items():
+        if name not in robot.tendon_names:
+            raise ValueError(f"{what} {name}: no such tendon (robot has "
+                             f"{', '.join(robot.tendon_names) or 'none'})")
+        out[robot.tendon_names.index(name)] = finite(f"{what} {name}", v)
+    return out
+
+
+def tensions(robot: Robot, values: Mapping[str, float] | None) -> np.ndarray:
+    """Tensions (N) per tendon by the rules of this module; tendons not named are slack."""
+    T = tendon_vector(robot, values, "tension")
+    for name, v in zip(robot.tendon_names, T):
+        if error := tension_error(name, v):
+            raise ValueError(error)
+    return T
+
+
+def displacements(robot: Robot, values: Mapping[str, float] | None) -> np.ndarray:
+    """Length changes (m) per tendon by the rules of this module; tendons not named: 0."""
+    y = tendon_vector(robot, values, "displacement")
+    for name, v, rest in zip(robot.tendon_names, y, rest_lengths(robot)):
+        if name in (values or {}) and (error := displacement_error(name, v, rest)):
+            raise ValueError(error)
+    return y
+
+
+def readings(robot: Robot, displacements_: Mapping[str, float],
+             tensions_: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    """``(T, y)`` per tendon of one reading: measured length changes ``displacements_`` (m)
+    and tensions ``tensions_`` (N) by tendon name; every measured tendon needs its tension."""
+    missing = [n for n in displacements_ if n not in (tensions_ or {})]
+    if missing:
+        raise ValueError(f"tension {missing[0]}: missing: the tendon's length change is "
+                         f"measured, its tension must be too (a slack tendon is 0)")
+    y = displacements(robot, displacements_)
+    return tensions(robot, tensions_), y
+
+
+def reading_error(robot: Robot, T: np.ndarray, y: np.ndarray, measured: Sequence[int],
+                  rest: np.ndarray | None = None) -> str | None:
+    """Why vectors of readings (tensions ``T``, length changes ``y`` with the ``measured``
+    ones checked) break the rules, or None (for readings already parsed into numbers)."""
+    rest = rest_lengths(robot) if rest is None else rest
+    names = robot.tendon_names
+    for j, name in enumerate(names):
+        if error := tension_error(name, float(T[j])):
+            return error
+    for j in measured:
+        if error := displacement_error(names[j], float(y[j]), float(rest[j])):
+            return error
+    return None
+
+
+def check_point_forces(robot: Robot, point_forces: Sequence[PointForce]):
+    """Validated ``(X (n,), forces (n, 3))`` of known point forces."""
+    Xs, Fs = [], []
+    for i, (X, f) in enumerate(point_forces):
+        X = finite(f"point force {i + 1} X", X)
+        if not 0.0 <= X <= robot.rod.length:
+            raise ValueError(f"point force {i + 1}: X = {X:g} m is outside the rod "
+                             f"[0, {robot.rod.length:g}]")
+        f = np.asarray(f, float).reshape(-1)
+        if f.size != 3 or not np.all(np.isfinite(f)):
+            raise ValueError(f"point force {i + 1}: the force must be 3 finite numbers")
+        Xs.append(X)
+        Fs.append(f)
+    return np.array(Xs, float), np.array(Fs, float).reshape(-1, 3)
+
+
+@dataclass(frozen=True)
+class PointForceUnknown:
+    """A point force of unknown magnitude (N) along the global unit ``direction`` at ``X``.
+
+    ``X`` is where it acts (m), or, for a force whose location is unknown too, ``None``
+    (anywhere on the rod) or a range ``(A, B)``: the estimate then finds X as well
+    (:attr:`located`), which takes one more measured tendon."""
+
+    X: float | tuple[float, float] | None
+    direction: tuple[float, float, float]
+
+    def __post_init__(self):
+        d = np.asarray(self.direction, float)
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
+            raise ValueError(f"unknown force at X = {self.X}: direction must be 3 finite "
+                             f"numbers, not all zero")
+        if isinstance(self.X, (tuple, list)):
+            if len(self.X) != 2:
+                raise ValueError(f"unknown force: a range of X is two numbers, got {self.X!r}")
+            a, b = (finite("unknown force X range", v) for v in self.X)
+            if not a < b:
+                raise ValueError(f"unknown force: the range of X must increase, got {a:g}:{b:g}")
+            object.__setattr__(self, "X", (a, b))
+        elif self.X is not None:
+            object.__setattr__(self, "X", finite("unknown force X", self.X))
+        object.__setattr__(self, "direction", tuple(d / np.linalg.norm(d)))
+
+    @property
+    def located(self) -> bool:
+        """Whether X is unknown too."""
+        return not isinstance(self.X, float)
+
+
+@dataclass(frozen=True)
+class GravityUnknown:
+    """The unknown scale of the robot's gravity (1 = the robot file's acceleration)."""
+
+
+@dataclass(frozen=True)
+class Noise:
+    """Sensor noise (1 σ) for the uncertainty band: lengths in m, tensions relative."""
+
+    length: float = 1e-4
+    tension: float = 0.025 / 3
+
+
+Unknown = PointForceUnknown | GravityUnknown
+
+
+def check_unknowns(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown]):
+    """The counting and range rules of eq. 17 for ``unknowns`` estimated from the tendons
+    ``measured``: a ValueError naming what is wrong."""
+    if not unknowns:
+        raise ValueError("estimation needs at least one unknown load")
+    for name in measured:
+        if name not in robot.tendon_names:
+            raise ValueError(f"displacement {name}: no such tendon (robot has "
+                             f"{', '.join(robot.tendon_names) or 'none'})")
+    n_a, n_p = len(measured), len(unknowns)
+    n_loc = sum(isinstance(u, PointForceUnknown) and u.located for u in unknowns)
+    if n_a < n_p + n_loc:
+        where = (f" and {n_loc} unknown location{'s' if n_loc > 1 else ''}" if n_loc else "")
+        raise ValueError(f"{n_p} unknown load magnitude{'s' if n_p > 1 else ''}{where} need at "
+                         f"least {n_p + n_loc} tendons with measured length and tension; got "
+                         f"{n_a} (n_a >= n_p{' + located' if n_loc else ''}, eq. 17)")
+    if sum(isinstance(u, GravityUnknown) for u in unknowns) > 1:
+        raise ValueError("gravity can be unknown only once")
+    L = robot.rod.length
+    for u in unknowns:
+        if isinstance(u, PointForceUnknown):
+            a, b = (0.0, L) if u.X is None else (u.X if u.located else (u.X, u.X))
+            if not 0.0 <= a <= b <= L:
+                what = f"X = {a:g} m" if a == b else f"the range {a:g}:{b:g} m"
+                raise ValueError(f"unknown force: {what} is outside the rod [0, {L:g}]")
+
+
+#: parameters :func:`~tendonsense.identification.identify` fits by name;
+#: ``friction_<tendon>`` fits one tendon's μ
+PARAMETERS = ("young_modulus", "density", "friction")
+
+
+def parameter_names(robot: Robot) -> tuple[str, ...]:
+    """Every parameter :func:`~tendonsense.identification.identify` can fit for ``robot``."""
+    return (*PARAMETERS, *(f"friction_{n}" for n in robot.tendon_names))

@@ -1,0 +1,103 @@
+"""Estimation over a log of readings (:mod:`tendonsense.readings`): a file on the compiled scan
+of :mod:`tendonsense.tracking`, its rows handed over as chunks finish; a live stream sample by
+sample (:class:`~tendonsense.online.OnlineEstimator`), its programs built before the first row
+is read."""
+
+from __future__ import annotations
+
+import csv
+from typing import Callable, Iterator, Sequence
+
+from .estimation import Noise, Unknown, problem
+from .online import OnlineEstimator
+from .readings import (ReadingsError, Sample, located, output_header, output_row, parse_header,
+                       parse_row)
+from .robot import Robot
+from .tracking import SampleEstimate, series_chunks
+
+#: samples per compiled scan of a file log
+CHUNK = 100
+
+
+def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sample],
+                    unknowns: Sequence[Unknown], point_forces=(), noise: Noise = Noise()
+                    ) -> Iterator[tuple[int, list[SampleEstimate | None]]]:
+    """Estimate every good sample of a log in order, each warm-started from the last good one
+    (:func:`~tendonsense.tracking.series_chunks`); yields ``(first, estimates)`` as chunks
+    finish, None for a bad sample."""
+    prob = problem(robot, measured, unknowns, point_forces)
+    good = [k for k, s in enumerate(samples) if not s.error]
+    out: list[SampleEstimate | None] = [None] * len(samples)
+    done = 0
+    for first, estimates in series_chunks(prob, [samples[k].displacements for k in good],
+                                          [samples[k].tensions for k in good], noise, CHUNK):
+        for k, e in zip(good[first:first + len(estimates)], estimates):
+            out[k] = e
+        end = (good[first + len(estimates)] if first + len(estimates) < len(good)
+               else len(samples))
+        yield done, out[done:end]
+        done = end
+    if done < len(samples):
+        yield done, out[done:]
+
+
+def estimate_readings(robot: Robot, measured: Sequence[str], samples: Sequence[Sample],
+                      unknowns: Sequence[Unknown], point_forces=(), noise: Noise = Noise(),
+                      progress: Callable[[int, int], None] | None = None
+                      ) -> list[SampleEstimate | None]:
+    """:func:`estimate_chunks`, collected; ``progress(done, total)`` is called per chunk."""
+    out: list[SampleEstimate | None] = []
+    for first, estimates in estimate_chunks(robot, measured, samples, unknowns, point_forces,
+                                            noise):
+        out += estimates
+        if progress:
+            progress(first + len(estimates), len(samples))
+    return out
+
+
+def online_estimator(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
+                     point_forces=(), noise: Noise = Noise(), rescue_budget=None
+                     ) -> OnlineEstimator:
+    """An :class:`OnlineEstimator` whose programs are built (or loaded from the disk cache)
+    now, so that its first reading is answered at full speed."""
+    online = OnlineEstimator(problem(robot, measured, unknowns, point_forces), noise,
+                             rescue_budget=rescue_budget)
+    online.prepare()
+    return online
+
+
+def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point_forces=(),
+                    noise: Noise = Noise(), source="<stdin>", on_skip=None,
+                    on_sample=None) -> tuple[int, int]:
+    """Live estimation: read READINGS.csv lines from ``lines`` (an iterable of text lines) and
+    write each output row to ``out`` as soon as it is estimated, flushed; then call
+    ``on_sample(sample, estimate or None)`` (e.g. a :class:`~tendonsense.view.Viewer`'s push).
+    The estimator's programs are built after the header, before the first row is read.
+    Returns (rows, converged). Ends at the end of the input; the caller handles an interrupt
+    (every row written so far is complete)."""
+    reader = csv.reader(lines)
+    try:
+        header = next(reader)
+    except StopIteration:
+        raise ReadingsError(f"{source}: no header row") from None
+    columns = parse_header(header, robot, source)
+    online = online_estimator(robot, columns.measured, unknowns, point_forces, noise)
+    writer = csv.writer(out)
+    with_shape = bool(columns.markers)
+    writer.writerow(output_header(robot, len(unknowns), with_shape, located(unknowns)))
+    out.flush()
+    rows = good = 0
+    for i, raw in enumerate(reader, start=1):
+        if not any(c.strip() for c in raw):
+            continue
+        s = parse_row(i, raw, columns, robot)
+        r = None if s.error else online.update(s.displacements, s.tensions)
+        if r is None and on_skip:
+            on_skip(s)
+        writer.writerow(output_row(robot, s, r, len(unknowns), with_shape, located(unknowns)))
+        out.flush()
+        if on_sample is not None:
+            on_sample(s, r)
+        rows, good = rows + 1, good + bool(r is not None and r.converged)
+    return rows, good
+

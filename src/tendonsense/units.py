@@ -1,0 +1,12 @@
+"""Units shown to users: forces in N and gram-force, lengths in m and mm (no JAX, no numpy)."""
+
+#: 1 gram-force in newtons
+GF = 9.80665e-3
+
+
+def newtons(value: float, sigma: float | None = None) -> str:
+    """A force with its unit and gram-force, e.g. ``0.0759 N (7.7 gF) ± 0.0027 N (0.3 gF)``."""
+    text = f"{value:.4g} N ({value / GF:.1f} gF)"
+    if sigma is not None:
+        text += f" ± {sigma:.2g} N ({sigma / GF:.1f} gF)"
+    return text

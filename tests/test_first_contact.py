@@ -1,0 +1,218 @@
+"""Trust at first contact (issue 24): one rule for every reading on every path, checks before
+computing (JAX not started), a result that is not a solution never dressed as one, a
+consistent command line."""
+
+import csv
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import PROTOTYPE, ROOT
+from tendonsense import inputs
+from tendonsense.estimation import PointForceUnknown, estimate, problem
+from tendonsense.forward import forward_kinematics, solve
+from tendonsense.identification import Snapshot, SnapshotError, identify
+from tendonsense.online import OnlineEstimator
+from tendonsense.tracking import estimate_series
+
+TIP = PointForceUnknown(0.25, (0, 0, -1))
+
+
+def cli(*args, cwd=None, stdin=None):
+    return subprocess.run([sys.executable, "-m", "tendonsense.cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=600, cwd=cwd, input=stdin)
+
+
+def refused_before_jax(*args) -> tuple[int, str, bool]:
+    """(exit status, stderr, whether JAX was imported) of the CLI in a fresh interpreter."""
+    code = ("import sys, contextlib, io\nfrom tendonsense.cli import main\nerr = io.StringIO()\n"
+            "with contextlib.redirect_stderr(err):\n    rc = main(sys.argv[1:])\n"
+            "print(rc, 'jax' in sys.modules)\nprint(err.getvalue(), end='')\n")
+    p = subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True,
+                       text=True, timeout=120)
+    assert p.stderr == "", p.stderr
+    first, *err = p.stdout.splitlines()
+    rc, jax_loaded = first.split()
+    return int(rc), "\n".join(err), jax_loaded == "True"
+
+
+# ------------------------------------------------------------------ the rules, on every path
+
+READINGS_SLIPS = [  # (displacements, tensions, words the message must have)
+    ({"t1": -0.005}, {}, "tension t1: missing"),
+    ({"t1": -0.005}, {"t1": -2.1}, "tension t1 = -2.1 N is negative"),
+    ({"t1": -5.0}, {"t1": 2.1}, "pulls in more than the tendon's whole length"),
+    ({"t1": 0.3}, {"t1": 2.1}, "pays out more than the tendon's whole length"),
+    ({"t1": float("nan")}, {"t1": 2.1}, "displacement t1"),
+    ({"t1": -0.005}, {"t1": float("inf")}, "tension t1"),
+    ({"t1": -0.005}, {"t1": 2.1, "t9": 1.0}, "tension t9: no such tendon"),
+]
+
+
+@pytest.mark.parametrize("y, T, words", READINGS_SLIPS)
+def test_a_bad_reading_is_refused_by_the_python_api(prototype, y, T, words):
+    with pytest.raises(ValueError, match=words.replace("(", r"\(")):
+        inputs.readings(prototype, y, T)
+    with pytest.raises(ValueError, match=words.split(":")[0].split(" =")[0]):
+        estimate(prototype, y, T, [TIP])
+
+
+@pytest.mark.parametrize("y, T, words", READINGS_SLIPS[:4])
+def test_a_bad_reading_is_marked_by_the_online_estimator_and_a_series(prototype, y, T, words):
+    online = OnlineEstimator(problem(prototype, ["t1"], [TIP]))
+    est = online.update(y, T)
+    assert not est.converged and words in est.note and np.isnan(est.magnitudes).all()
+    good = solve(prototype, {"t1": 2.0}, [(0.25, (0, 0, -0.1))]).displacements["t1"]
+    series = estimate_series(problem(prototype, ["t1"], [TIP]), [{"t1": good}, y],
+                             [{"t1": 2.0}, T])
+    assert series[0].converged and series[0].magnitudes[0] == pytest.approx(0.1, rel=1e-6)
+    assert not series[1].converged and words in series[1].note
+
+
+def test_forward_problems_refuse_a_pushing_tendon_and_an_impossible_length(prototype):
+    with pytest.raises(ValueError, match="tension t1 = -2 N is negative"):
+        solve(prototype, {"t1": -2.0})
+    with pytest.raises(ValueError, match="pulls in more"):
+        forward_kinematics(prototype, {"t1": -5.0})
+
+
+def test_identify_refuses_a_negative_tension_in_a_snapshot(prototype):
+    snap = Snapshot(dict(t1=-1.0, t2=0.0, t3=0.0), {"tip": np.zeros(3)})
+    with pytest.raises(SnapshotError, match="snapshot 1: tension t1 = -1 N is negative"):
+        identify(prototype, [snap], ("young_modulus",))
+
+
+def test_a_file_says_every_tendons_tension(tmp_path):
+    """A missing tension column is an error, never a slack tendon (log, stream, snapshots)."""
+    log = tmp_path / "log.csv"
+    log.write_text("time,tension_t1,displacement_t1\n0,2.0,-0.004\n")
+    rc, err, jax_loaded = refused_before_jax("estimate", PROTOTYPE, "--readings", log,
+                                             "--unknown", "0.25,0,0,-1", "-o", tmp_path / "o.csv")
+    assert rc == 1 and "no column tension_t2, tension_t3" in err and "zeros" in err
+    assert not jax_loaded and not (tmp_path / "o.csv").exists()
+    p = cli("estimate", PROTOTYPE, "--readings", "-", "--unknown", "0.25,0,0,-1",
+            stdin=log.read_text())
+    assert p.returncode == 1 and "no column tension_t2" in p.stderr and p.stdout == ""
+    snaps = tmp_path / "snaps.csv"
+    snaps.write_text("tension_t2,tension_t3,marker_tip_x,marker_tip_y,marker_tip_z\n"
+                     "0,0,0.24,0,-0.05\n")
+    rc, err, jax_loaded = refused_before_jax("identify", PROTOTYPE, "--snapshots", snaps)
+    assert rc == 1 and "no column tension_t1" in err and not jax_loaded
+
+
+def test_a_log_row_breaking_a_rule_is_marked_and_the_rest_estimated(prototype, tmp_path):
+    y = solve(prototype, {"t1": 2.0}, [(0.25, (0, 0, -0.1))]).displacements["t1"]
+    log = tmp_path / "log.csv"
+    log.write_text("time,tension_t1,tension_t2,tension_t3,displacement_t1\n"
+                   f"0,2.0,0,0,{y!r}\n0.1,2.0,0,0,-5\n0.2,-2.0,0,0,{y!r}\n0.3,2.0,0,0,{y!r}\n")
+    p = cli("estimate", PROTOTYPE, "--readings", log, "--unknown", "0.25,0,0,-1")
+    assert p.returncode == 3
+    rows = list(csv.DictReader(p.stdout.splitlines()))
+    assert [r["converged"] for r in rows] == ["true", "false", "false", "true"]
+    assert "pulls in more" in rows[1]["note"] and "negative" in rows[2]["note"]
+    assert float(rows[3]["magnitude_1"]) == pytest.approx(0.1, rel=1e-6)
+
+
+def test_a_header_only_log_is_an_error(tmp_path):
+    log = tmp_path / "log.csv"
+    log.write_text("time,tension_t1,tension_t2,tension_t3,displacement_t1\n")
+    rc, err, jax_loaded = refused_before_jax("estimate", PROTOTYPE, "--readings", log,
+                                             "--unknown", "0.25,0,0,-1", "-o", tmp_path / "o.csv")
+    assert rc == 1 and "no data rows" in err and not jax_loaded
+    p = cli("estimate", PROTOTYPE, "--readings", "-", "--unknown", "0.25,0,0,-1",
+            stdin=log.read_text())
+    assert p.returncode == 1 and "no data rows" in p.stderr
+
+
+# ------------------------------------------------------------ the command line, before JAX
+
+@pytest.mark.parametrize("args, status, words", [
+    (("solve", PROTOTYPE, "--tension", "t1=-2.0"), 1, "tension t1 = -2 N is negative"),
+    (("fk", PROTOTYPE, "--displacement", "t1=-5"), 1, "pulls in more"),
+    (("fk", PROTOTYPE, "--displacement", "t1=-0.01", "--tension", "t2=-1"), 1, "negative"),
+    (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--unknown", "0.25,0,0,-1"), 1,
+     "tension t1: missing"),
+    (("estimate", PROTOTYPE, "--displacement", "t1=-5", "--tension", "t1=2.1", "--unknown",
+      "0.25,0,0,-1"), 1, "pulls in more"),
+    (("solve", PROTOTYPE, "--tension", "t1=2", "--tension", "t1=3"), 2,
+     "--tension t1 given twice"),
+    (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--displacement", "t1=-0.004",
+      "--tension", "t1=2", "--unknown", "0.25,0,0,-1"), 2, "--displacement t1 given twice"),
+    (("solve", PROTOTYPE, "--tension", "t1=2", "--plot", "no/such/folder/shape.png"), 1,
+     "--plot no/such/folder/shape.png: no folder"),
+    (("estimate", PROTOTYPE, "--readings", ROOT / "examples" / "tutorial" / "readings.csv",
+      "--unknown", "0.25,0,0,-1", "-o", "no/such/folder/out.csv"), 1,
+     "-o/--estimates no/such/folder/out.csv: no folder"),
+    (("identify", PROTOTYPE, "--snapshots", ROOT / "examples" / "tutorial" / "snapshots.csv",
+      "--param", "stiffness"), 2, "--param stiffness: not a parameter"),
+    (("solve", PROTOTYPE, "--point-force", "-0.1,0,0,-1"), 1,
+     "point force 1: X = -0.1 m is outside the rod"),
+    (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--tension", "t1=2", "--unknown",
+      "?,0,0,-1"), 1, "need at least 2 tendons"),
+])
+def test_a_slip_is_refused_in_one_line_before_jax_starts(tmp_path, args, status, words):
+    rc, err, jax_loaded = refused_before_jax(*args)
+    assert rc == status, err
+    assert words in err
+    assert len(err.strip().splitlines()) == 1
+    assert not jax_loaded
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_version_usage_and_descriptions():
+    from tendonsense import __version__
+    from tendonsense.cli import build_parser
+    p = cli("--version")
+    assert p.returncode == 0 and p.stdout.strip() == f"tendonsense {__version__}"
+    p = cli()
+    assert p.returncode == 2 and "usage: tendonsense" in p.stderr and "solve" in p.stderr
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    for name, parser in sub.choices.items():
+        assert parser.description and len(parser.description) > 40, name
+    estimate_help = sub.choices["estimate"].format_help()
+    assert "'?'" in estimate_help and "'A:B'" in estimate_help
+
+
+def test_the_analyses_run_from_any_folder(tmp_path):
+    """Their default robots and experiments table come with the package."""
+    code = ("from tendonsense.cli import build_parser, _resolve_robot\n"
+            "from tendonsense import load_robot\nfrom pathlib import Path\n"
+            "for cmd in ('sensitivity', 'resolution', 'compare', 'experiments'):\n"
+            "    args = build_parser().parse_args([cmd])\n    _resolve_robot(args)\n"
+            "    load_robot(args.robot)\n"
+            "    assert not hasattr(args, 'csv') or Path(args.csv).is_file(), args.csv\n"
+            "print('ok')\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       cwd=tmp_path, timeout=120)
+    assert p.stdout.strip() == "ok", p.stderr
+
+
+# ------------------------------------------------------ a result that is not a solution
+
+def test_a_solve_that_did_not_converge_is_not_dressed_as_one(tmp_path):
+    p = cli("solve", PROTOTYPE, "--tension", "t1=2000", cwd=tmp_path)
+    assert p.returncode == 3
+    head, *rest = p.stdout.splitlines()
+    assert "NOT CONVERGED: " in head and len(head.split("NOT CONVERGED: ")[1]) > 20
+    assert "residual" in head or "strain" in head
+    assert not any("markers" in line or "tip (X" in line for line in rest)
+    assert list(tmp_path.iterdir()) == []  # nothing written without --plot
+    p = cli("solve", PROTOTYPE, "--tension", "t1=2000", "--json", "--plot", tmp_path / "s.png")
+    out = json.loads(p.stdout)
+    assert out["converged"] is False and out["note"] and p.returncode == 3
+    assert (tmp_path / "s.png").stat().st_size > 10_000  # asked for: drawn, stamped
+
+
+def test_a_fitted_robot_file_keeps_its_comments_and_says_how_it_was_made(tmp_path):
+    guess = ROOT / "examples" / "tutorial" / "robot_guess.toml"
+    p = cli("identify", guess, "--snapshots", ROOT / "examples" / "tutorial" / "snapshots.csv",
+            "-o", tmp_path / "fitted.toml")
+    assert p.returncode == 0, p.stderr
+    text = (tmp_path / "fitted.toml").read_text()
+    assert text.startswith("# fitted by tendonsense identify")
+    assert "snapshots.csv (" in text and "marker RMSE" in text
+    comments = [line for line in guess.read_text().splitlines() if line.startswith("#")]
+    assert comments and all(c in text for c in comments)

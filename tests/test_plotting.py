@@ -1,0 +1,114 @@
+import dataclasses
+from types import SimpleNamespace
+
+import matplotlib
+import numpy as np
+import pytest
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.colors import to_rgba  # noqa: E402
+
+from tendonsense import plotting  # noqa: E402
+from tendonsense.forward import model_for, solve  # noqa: E402
+from tendonsense.kinematics import frames_fn  # noqa: E402
+from tendonsense.units import newtons  # noqa: E402
+
+TIP = (0.25, np.array([0.0, 0.0, -0.1]))
+ESTIMATED = (0.25, np.array([0.0, 0.0, -0.0759]), 0.0027)
+
+
+@pytest.fixture(scope="module")
+def solved(prototype):
+    return solve(prototype, {"t1": 2.0}, [(0.25, (0, 0, -0.1))])
+
+
+@pytest.fixture
+def figure(solved, prototype):
+    fig = plotting.shape_figure(solved, prototype, forces=[TIP], estimated=[ESTIMATED],
+                                title="prototype: shape", given="given: t1 tension 2 N")
+    fig.canvas.draw()
+    yield fig
+    plt.close(fig)
+
+
+def views(fig):
+    return fig.axes[:2]
+
+
+def texts(ax):
+    return [t.get_text() for t in ax.texts if t.get_text()]
+
+
+def test_frames_fn_gives_the_backbone(solved, prototype):
+    model = model_for(prototype)
+    X = np.linspace(0.0, prototype.rod.length, len(solved.backbone))
+    g = np.asarray(frames_fn(model.structure)(model.values, solved.q, X))
+    assert g.shape == (len(X), 4, 4)
+    assert np.allclose(g[:, :3, 3], solved.backbone, atol=1e-9)
+    assert np.allclose(g[:, :3, :3] @ np.swapaxes(g[:, :3, :3], 1, 2), np.eye(3), atol=1e-9)
+
+
+def test_shape_writes_a_png(solved, prototype, tmp_path):
+    path = plotting.shape(solved, tmp_path / "s.png", prototype, forces=[TIP])
+    data = path.read_bytes()
+    assert path == tmp_path / "s.png" and data[:8] == b"\x89PNG\r\n\x1a\n"
+    width, height = (int.from_bytes(data[k:k + 4], "big") for k in (16, 20))
+    assert 600 < width < 1600 and 400 < height < 1400
+    assert len(data) > 20_000
+
+
+def test_views_are_equal_scale_and_tight(figure, solved):
+    side, top = views(figure)
+    b = solved.backbone * 1e3
+    scales = []
+    for ax, (i, j) in ((side, (0, 2)), (top, (0, 1))):
+        assert ax.get_aspect() == 1.0
+        box = ax.get_window_extent()
+        (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+        assert (x1 - x0) / box.width == pytest.approx((y1 - y0) / box.height, rel=0.01)
+        scales.append((x1 - x0) / box.width)
+        assert x0 < b[:, i].min() and b[:, i].max() < x1
+        assert y0 < b[:, j].min() and b[:, j].max() < y1
+    assert scales[0] == pytest.approx(scales[1], rel=0.01)
+    assert np.ptp(b[:, 0]) / np.ptp(side.get_xlim()) > 0.7
+
+
+def test_labels_name_markers_and_forces_without_overlapping(figure, prototype):
+    side, top = views(figure)
+    for ax in (side, top):
+        assert set(prototype.marker_names) <= set(texts(ax))
+        boxes = [t.get_window_extent() for t in ax.texts if t.get_text()]
+        assert not any(a.overlaps(b) for k, a in enumerate(boxes) for b in boxes[k + 1:])
+    labels = texts(side) + texts(top)
+    assert newtons(0.1) in labels
+    assert newtons(0.0759, 0.0027) in labels and "±" in newtons(0.0759, 0.0027)
+    assert "NOT CONVERGED" not in [t.get_text() for t in figure.texts]
+    assert {"prototype: shape", "given: t1 tension 2 N"} <= {t.get_text() for t in figure.texts}
+
+
+def test_tendons_coloured_by_tension(figure):
+    colours = [to_rgba(line.get_color()) for line in views(figure)[0].lines]
+    slack = colours.count(to_rgba(plotting.SLACK))
+    assert slack == 2  # t2 and t3
+    assert to_rgba(plotting.TENSION_CMAP(1.0)) in colours  # t1, the largest tension
+
+
+@pytest.mark.parametrize("failed", ["strain outside the model's range", None])
+def test_failed_results_are_stamped(solved, prototype, failed):
+    result = solved if failed else dataclasses.replace(solved, converged=False)
+    fig = plotting.shape_figure(result, prototype, failed=failed)
+    stamp = [t.get_text() for t in fig.texts]
+    plt.close(fig)
+    assert "NOT CONVERGED" in stamp
+    assert (failed in stamp) if failed else len(stamp) == 1
+
+
+def test_calibration_errors_in_mm(monkeypatch, tmp_path):
+    monkeypatch.setattr(plotting, "_save", lambda fig, path: fig)
+    fit = SimpleNamespace(snapshot_errors=[(0.001, 2e-5), (0.002, 3e-5)], crossval=None)
+    fig = plotting.calibration(fit, tmp_path / "c.png")
+    markers, lengths = fig.axes
+    plt.close(fig)
+    assert "(mm)" in markers.get_ylabel() and "(mm)" in lengths.get_ylabel()
+    assert [p.get_height() for p in lengths.patches] == pytest.approx([0.02, 0.03])
