@@ -6,11 +6,12 @@ import pytest
 import jax
 
 import tendonsense  # noqa: F401  (enables float64 before anything else touches JAX)
+from tendonsense import compiled
 
 # This process compiles hundreds of programs; after many of them, writing one more executable
 # into XLA's persistent compilation cache has crashed it (a segmentation fault inside
-# jax's put_executable_and_time, jax 0.10.2, not reproducible with a few programs). The
-# command-line tests run in their own processes and keep the cache.
+# jax's put_executable_and_time, jax 0.10.2). tendonsense keeps its programs' executables
+# itself (tendonsense.compiled) and leaves XLA's cache off; so does this process.
 jax.config.update("jax_enable_compilation_cache", False)
 
 
@@ -19,6 +20,7 @@ def _release_compiled_programs():
     """Each test module starts without the programs the ones before it compiled: a process
     that has loaded several hundred executables has crashed inside XLA's CPU compiler."""
     yield
+    compiled.release()
     jax.clear_caches()
 from tendonsense.robot import load_robot, parse_robot
 

@@ -84,9 +84,9 @@ def test_refuses_fewer_tendons_than_unknowns(prototype):
 
 
 def test_impossible_reading_is_not_reported_converged(prototype):
-    # pulled in by more than the tendon is long: no shape can do that
-    est = estimate(prototype, {"t1": -0.3}, {"t1": 2.0}, [PointForceUnknown(0.25, UZ)])
-    assert not est.converged
+    # pulled in by more than the tendon is long: no shape can do that (refused, with why)
+    with pytest.raises(ValueError, match="pulls in more than the tendon's whole length"):
+        estimate(prototype, {"t1": -0.3}, {"t1": 2.0}, [PointForceUnknown(0.25, UZ)])
 
 
 @pytest.mark.parametrize("case", ["1-D tip force, t1", "3-D tip force, three tendons"])

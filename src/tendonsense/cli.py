@@ -373,7 +373,7 @@ def _check(args, robot) -> None:
         from .readings import read_snapshots
         bad = [p for p in args.param or () if p not in inputs.parameter_names(robot)]
         if bad:
-            raise UsageError(f"tendonsense identify: --param {bad[0]}: not a parameter (one of "
+            raise ValueError(f"--param {bad[0]}: not a parameter of this robot (one of "
                              f"{', '.join(inputs.parameter_names(robot))})")
         for path, what in ((args.fitted_robot, "-o/--fitted-robot"), (args.plot, "--plot")):
             if path:

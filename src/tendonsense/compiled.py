@@ -15,6 +15,7 @@ import pickle
 import platform
 import tempfile
 import threading
+import weakref
 from functools import lru_cache
 from pathlib import Path
 
@@ -54,6 +55,7 @@ class Program:
         self.fn, self.name, self.key = fn, name, repr(key)
         self.jitted = jax.jit(fn)
         self.loaded: dict[tuple, object] = {}
+        _PROGRAMS.add(self)
 
     def __call__(self, *args):
         signature = _signature(args)
@@ -86,6 +88,18 @@ class Program:
         except Exception:  # an executable that cannot be kept still runs
             pass
         return compiled
+
+
+#: every program of this process, for :func:`release`
+_PROGRAMS: weakref.WeakSet[Program] = weakref.WeakSet()
+
+
+def release() -> None:
+    """Drop every program's executables from memory (they load again from disk when next
+    called), e.g. with :func:`jax.clear_caches` in a process that has run very many."""
+    with _COMPILING:
+        for program in list(_PROGRAMS):
+            program.loaded.clear()
 
 
 def _serialize(compiled) -> bytes:

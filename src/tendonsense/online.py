@@ -1,6 +1,6 @@
 """Live estimation: readings arrive one at a time and each is answered within a bounded amount
 of work, warm-started from the last good sample (eq. 17 on the fast path of
-:mod:`tendonsense.tracking`)."""
+:mod:`tendonsense.fastpath`)."""
 
 from __future__ import annotations
 
@@ -10,10 +10,17 @@ from typing import Mapping
 import jax
 import numpy as np
 
-from .estimation import Noise, Problem, estimate_problem
+from .estimation import estimate_problem
+from .fastpath import Track, stepper, unpack_row
 from .forward import INADMISSIBLE
+from .inputs import Noise
+from .problem import Problem, band
+from .result import SampleEstimate
 from .statics import solve_system
-from .tracking import SampleEstimate, Track, band, stepper, unpack_row
+
+#: evaluations of the solve from the straight rod that a sample the fast path could not
+#: converge gets once an earlier sample has converged (the first gets the full budget)
+RESCUE_BUDGET = 12
 
 
 class OnlineEstimator:

@@ -11,15 +11,13 @@ import os
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from .inputs import Unknown, displacement_error, rest_lengths, tension_error
+from .result import SampleEstimate
 from .robot import Robot
-
-if TYPE_CHECKING:
-    from .tracking import SampleEstimate
 
 AXES = ("x", "y", "z")
 
@@ -338,10 +336,3 @@ class AtomicText(io.TextIOWrapper):
     def __exit__(self, *exc):
         self.close()
 
-
-def __getattr__(name: str):
-    """The estimation over a log moved to :mod:`tendonsense.logs`; old imports keep working."""
-    if name in ("estimate_readings", "stream_readings"):
-        from . import logs
-        return getattr(logs, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,4 +1,5 @@
-"""One result object for every problem, in the spirit of scipy's ``OptimizeResult``."""
+"""One result object for every problem, in the spirit of scipy's ``OptimizeResult``, and
+the lighter one of a sample in a series."""
 
 from __future__ import annotations
 
@@ -59,3 +60,29 @@ def _plain(v):
     if isinstance(v, (float, np.floating)):
         return float(v)
     return v
+
+
+@dataclass(frozen=True, eq=False)
+class SampleEstimate:
+    """One sample of a series: magnitudes with their 1-σ band, markers (global, m)."""
+
+    magnitudes: np.ndarray
+    sigma: np.ndarray
+    markers: dict[str, np.ndarray]
+    converged: bool
+    iterations: int
+    x: np.ndarray
+    note: str = ""  # why a sample is not converged
+    locations: np.ndarray = field(default_factory=lambda: np.zeros(0))  # located forces' X, m
+    location_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @staticmethod
+    def failed(prob, note: str, x=None, iterations: int = 0) -> "SampleEstimate":
+        """A sample of the :class:`~tendonsense.problem.Problem` ``prob`` that has no estimate
+        (not-a-number magnitudes and markers)."""
+        nan = np.full(prob.n_magnitudes, np.nan)
+        x = np.full(prob.model.nq + prob.n_z, np.nan) if x is None else x
+        loc = np.full(len(prob.located), np.nan)
+        return SampleEstimate(nan, nan.copy(), {m: np.full(3, np.nan)
+                                                for m in prob.robot.marker_names},
+                              False, iterations, x, note, loc, loc.copy())

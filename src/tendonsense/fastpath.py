@@ -1,0 +1,324 @@
+"""The fast path: the compiled per-sample step of the estimation problem, over a series (one
+compiled scan, :func:`tracker`) or one sample at a time (:func:`stepper`).
+
+Each sample starts from a first-order prediction (the previous solution plus its sensitivity
+times the change of the measurements) and takes quasi-Newton steps with an inverse Jacobian
+carried along the scan and kept current by Broyden updates. A step that does not halve the
+residual triggers a fresh exact Jacobian at the current point, after which the iteration is
+the damped Newton method of :mod:`tendonsense.statics` (Armijo backtracking). Convergence is
+tested exactly as there, so the results agree with the plain path to the solver tolerance.
+The sensitivity to the measurements, ``dx/dm = −R_x⁻¹ R_m``, uses the carried inverse with two
+steps of iterative refinement against the exact ``R_x`` (JVPs).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import linalg, tendons
+from .compiled import Program
+from .kinematics import poses, positions
+from .model import Structure, points_at
+from .problem import Problem
+from .statics import (CACHE_SIZE, Drive, Scaling, admissible, residual, scaling)
+
+
+class Track(NamedTuple):
+    """Per-sample outputs (leading axis: sample, for a series)."""
+
+    x: jax.Array  # (N, nq + n_z) solution [q; z]
+    converged: jax.Array  # (N,) converged and admissible
+    iterations: jax.Array  # (N,) residual evaluations
+    jacobians: jax.Array  # (N,) exact Jacobians computed
+    dx_dm: jax.Array  # (N, nq + n_z, n_meas + n_T) sensitivity to [y_meas; T_columns]
+    markers: jax.Array  # (N, n_markers, 3)
+    lengths: jax.Array  # (N, n_t) tendon length changes, eq. 9
+    admissible: jax.Array  # (N,) strain within the model's range (:func:`admissible`)
+
+
+class Carry(NamedTuple):
+    """What a sample hands the next: the last good solution, the inverse Jacobian there, its
+    sensitivity to the measurements and those measurements."""
+
+    x: jax.Array
+    H: jax.Array
+    dx_dm: jax.Array
+    measurements: jax.Array
+    ok: jax.Array
+    count: jax.Array
+    scaling: Scaling  # of the residual, for samples that keep the values of the first
+
+
+#: work budget of one sample on the fast path: residual evaluations and exact Jacobians
+MAX_EVALUATIONS, MAX_JACOBIANS = 60, 6
+
+
+def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
+                tension_columns: tuple[int, ...], refine_every: int, step_tol: float = 1e-8):
+    """``init(x0, d0, p0, unknowns, values) -> Carry`` and
+    ``step(carry, d, p, unknowns, values) -> (Carry, Track row)`` of the tracker (pure):
+    quasi-Newton for a square system, Gauss–Newton SQP for least squares (n_z < n_a)."""
+    num = structure.numerics
+    nq = structure.nq
+    tcols = np.array(tension_columns, int)
+    sel = np.array(measured, int)
+
+    def at(values, p, sc=None):  # the values of one sample and their residual scaling
+        if p or sc is None:  # (a Cholesky factorisation and inverse: not per sample)
+            v = values._replace(**p) if p else values
+            return v, scaling(v, measured)
+        return values, sc
+
+    def f(x, d, unknowns, vs, with_actuation=False):  # (r, load size[, ∂r/∂T])
+        return residual(structure, vs[0], measured, x, d, unknowns, 1.0, vs[1],
+                        with_actuation=with_actuation)
+
+    def jac(x, d, unknowns, vs):
+        return jax.jacfwd(lambda x: f(x, d, unknowns, vs)[0])(x)
+
+    def merit(r):
+        m = 0.5 * jnp.dot(r, r)
+        return jnp.where(jnp.isfinite(m), m, jnp.inf)
+
+    def measurements(d):
+        return jnp.concatenate([d.targets, d.tensions[tcols]])
+
+    def init(x0, d0, p0, unknowns, values):
+        m0 = measurements(d0)
+        vs = at(values, p0)
+        return Carry(x0, linalg.inv(jac(x0, d0, unknowns, vs)),
+                     jnp.zeros((x0.size, m0.size)), m0, jnp.asarray(False), jnp.asarray(0),
+                     vs[1])
+
+    def step(carry: Carry, d, p, unknowns, values):
+        vs = at(values, p, carry.scaling)
+        sc = vs[1]
+        floor = vs[0].energy_floor * jnp.sqrt(vs[0].young_modulus)
+        # first-order tangent predictor from the previous sample's sensitivity
+        guess = carry.x + jnp.where(carry.ok, carry.dx_dm @ (measurements(d) - carry.measurements),
+                                    0.0)
+        r, s = f(guess, d, unknowns, vs)
+        st = dict(x=guess, r=r, s=s, H=carry.H, fresh=jnp.asarray(False),
+                  alpha=jnp.asarray(1.0), evals=jnp.asarray(1), jacs=jnp.asarray(0),
+                  status=jnp.where(jnp.linalg.norm(r) <= num.tolerance * (s + floor), 1, 0))
+
+        def cond(st):
+            return (st["status"] == 0) & (st["evals"] < MAX_EVALUATIONS)
+
+        def body(st):
+            dx = -st["H"] @ st["r"]
+            xt = st["x"] + st["alpha"] * dx
+            rt, ts = f(xt, d, unknowns, vs)
+            m0, mt = merit(st["r"]), merit(rt)
+            contracts = mt <= 0.25 * m0
+            armijo = mt <= (1 - 2e-4 * st["alpha"]) * m0
+            accept = contracts | (st["fresh"] & armijo)
+            conv = jnp.linalg.norm(rt) <= num.tolerance * (ts + floor)
+            refresh = ~accept & ~st["fresh"]
+            # good Broyden update of the inverse on an accepted step, exact on refresh
+            step, dr = xt - st["x"], rt - st["r"]
+            Hy = st["H"] @ dr
+            denom = jnp.dot(step, Hy)
+            safe = accept & (jnp.abs(denom) > 1e-300)
+            broyden = st["H"] + jnp.outer(step - Hy, step @ st["H"]) / jnp.where(
+                safe, denom, 1.0)
+            H = jax.lax.cond(refresh, lambda: linalg.inv(jac(st["x"], d, unknowns, vs)),
+                             lambda: jnp.where(safe, broyden, st["H"]))
+            give_up = (~accept & st["fresh"] & (st["alpha"] < 2.0**-30)) | (
+                refresh & (st["jacs"] >= MAX_JACOBIANS))
+            return dict(
+                x=jnp.where(accept, xt, st["x"]), r=jnp.where(accept, rt, st["r"]),
+                s=jnp.where(accept, ts, st["s"]), H=H,
+                fresh=jnp.where(accept, False, True),
+                alpha=jnp.where(accept | refresh, 1.0, st["alpha"] / 2),
+                evals=st["evals"] + 1, jacs=st["jacs"] + refresh.astype(int),
+                status=jnp.where(accept, jnp.where(conv, 1, 0), jnp.where(give_up, 2, 0)))
+
+        st = jax.lax.while_loop(cond, body, st)
+        x = st["x"]
+        fine = admissible(vs[0], x[:nq])
+        ok = (st["status"] == 1) & fine
+        # sensitivity to the measurements [y_meas; T]: R_x dx = −R_m dm
+        # ∂r/∂y_meas is −√k on the length rows, ∂r/∂T = −L⁻¹B on the equilibrium rows
+        Ry = jnp.zeros((x.size, sel.size)).at[nq + jnp.arange(sel.size),
+                                               jnp.arange(sel.size)].set(-sc.root_k)
+        rT = f(x, d, unknowns, vs, with_actuation=True)[2]  # once, not in every evaluation
+        Rm = jnp.concatenate([Ry, rT[:, tcols]], axis=1)
+        Rx = jax.vmap(lambda u: jax.jvp(lambda x: f(x, d, unknowns, vs)[0], (x,), (u,))[1],
+                      in_axes=1, out_axes=1)
+
+        def refine(H):
+            # the exact products W = R_x v give a block (multi-secant) Broyden update of the
+            # inverse, H W = v, then the refined v = −H R_m
+            v = -H @ Rm
+            W = Rx(v)
+            HW = H @ W
+            M = v.T @ HW
+            ok_m = jnp.abs(jnp.linalg.det(M)) > 1e-300
+            Hn = H + (v - HW) @ linalg.solve(jnp.where(ok_m, M, jnp.eye(M.shape[0])),
+                                             v.T @ H)
+            return jnp.where(ok_m, Hn, H)
+
+        H = jax.lax.cond(carry.count % refine_every == 0, refine, lambda H: H, st["H"])
+        return finish(carry, d, values, x, ok, fine, H, -H @ Rm, st["evals"], st["jacs"])
+
+    def finish(carry, d, values, x, ok, fine, H, dx_dm, evals, jacs):
+        grid, g = poses(values, x[:nq], points_at(structure, values, values.marker_X))
+        markers = positions(g, values.marker_offsets)
+        y = tendons.length_changes(structure, values, grid, x[:nq])
+        # a failed sample leaves the carry as it was: the next one starts from the last good
+        new = Carry(x, H, dx_dm, measurements(d), ok, carry.count + 1, carry.scaling)
+        keep = carry._replace(count=carry.count + 1)
+        out = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, keep)
+        return out, Track(x, ok, evals, jacs, dx_dm, markers, y, fine)
+
+    def linear(x, d, unknowns, vs):  # (J, r, load size, ∂r/∂T), one residual evaluation
+        def with_aux(x):
+            out = f(x, d, unknowns, vs, with_actuation=True)
+            return out[0], out
+        J, (r, s, rT) = jax.jacfwd(with_aux, has_aux=True)(x)
+        return J, r, s, rT
+
+    def kkt(J):
+        """eq. 17 linearised: min ‖r_y + C dx‖² subject to r_E + A dx = 0, J = [A; C], as the
+        system [[CᵀC, Aᵀ], [A, 0]] [dx; λ]."""
+        A, C = J[:nq], J[nq:]
+        return jnp.block([[C.T @ C, A.T], [A, jnp.zeros((nq, nq))]])
+
+    def gauss_newton(J, r):
+        C = J[nq:]
+        rhs = jnp.concatenate([-C.T @ r[nq:], -r[:nq]])
+        return jnp.linalg.solve(kkt(J), rhs)[:nq + n_z]
+
+    def init_ls(x0, d0, p0, unknowns, values):
+        m0 = measurements(d0)
+        n = nq + n_z
+        return Carry(x0, jnp.zeros((n, n)), jnp.zeros((n, m0.size)), m0, jnp.asarray(False),
+                     jnp.asarray(0), at(values, p0)[1])
+
+    def step_ls(carry: Carry, d, p, unknowns, values):
+        vs = at(values, p, carry.scaling)
+        floor = vs[0].energy_floor * jnp.sqrt(vs[0].young_modulus)
+        guess = carry.x + jnp.where(carry.ok, carry.dx_dm @ (measurements(d) - carry.measurements),
+                                    0.0)
+
+        def merit(r):  # equilibrium weighted above the lengths: the SQP step descends on it
+            m = 0.5 * (10.0 * jnp.dot(r[:nq], r[:nq]) + jnp.dot(r[nq:], r[nq:]))
+            return jnp.where(jnp.isfinite(m), m, jnp.inf)
+
+        def stationary(x, r, s, dx):
+            # equilibrium holds and the Gauss–Newton step in z is below its resolution, or
+            # the lengths are met exactly
+            small = num.tolerance * (s + floor)
+            z = x[nq:]
+            return (jnp.linalg.norm(r[:nq]) <= small) & (
+                (jnp.linalg.norm(dx[nq:]) <= step_tol * (jnp.linalg.norm(z) + 1e-6))
+                | (jnp.linalg.norm(r[nq:]) <= small))
+
+        J, r, s, rT = linear(guess, d, unknowns, vs)
+        dx = gauss_newton(J, r)
+        st = dict(x=guess, J=J, r=r, s=s, rT=rT, dx=dx, alpha=jnp.asarray(1.0),
+                  evals=jnp.asarray(1), jacs=jnp.asarray(1),
+                  status=jnp.where(stationary(guess, r, s, dx), 1, 0))
+
+        def cond(st):
+            return (st["status"] == 0) & (st["evals"] < MAX_EVALUATIONS) & (
+                st["jacs"] < 2 * MAX_JACOBIANS)
+
+        def body(st):
+            xt = st["x"] + st["alpha"] * st["dx"]
+            Jt, rt, ts, rTt = linear(xt, d, unknowns, vs)
+            # Armijo on the merit, or a step that restores equilibrium (where the lengths'
+            # misfit is large, e.g. a force tried at the wrong X, the merit alone can refuse
+            # the step to the constrained minimum)
+            rE, rEt = jnp.linalg.norm(st["r"][:nq]), jnp.linalg.norm(rt[:nq])
+            accept = (merit(rt) <= (1 - 1e-4 * st["alpha"]) * merit(st["r"])) | (
+                (rEt <= 0.5 * rE) & (rE > num.tolerance * (st["s"] + floor))
+                & jnp.isfinite(merit(rt)))
+            dxt = gauss_newton(Jt, rt)
+            new = dict(x=xt, J=Jt, r=rt, s=ts, rT=rTt, dx=dxt, alpha=jnp.asarray(1.0),
+                       status=jnp.where(stationary(xt, rt, ts, dxt), 1, 0))
+            old = dict(st, alpha=st["alpha"] / 2,
+                       status=jnp.where(st["alpha"] < 2.0**-20, 2, 0))
+            out = jax.tree_util.tree_map(lambda a, b: jnp.where(accept, a, b), new,
+                                         {k: old[k] for k in new})
+            return dict(out, evals=st["evals"] + 1, jacs=st["jacs"] + 1)
+
+        st = jax.lax.while_loop(cond, body, st)
+        x = st["x"]
+        fine = admissible(vs[0], x[:nq])
+        ok = (st["status"] == 1) & fine
+        # Gauss–Newton sensitivity to the measurements [y_meas; T] (as the uncertainty of
+        # eq. 17 in :mod:`tendonsense.estimation`): the same KKT system, right-hand side R_m
+        Ry = jnp.zeros((x.size - n_z + sel.size, sel.size)).at[
+            nq + jnp.arange(sel.size), jnp.arange(sel.size)].set(-vs[1].root_k)
+        Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)
+        C = st["J"][nq:]
+        rhs = jnp.concatenate([-C.T @ Rm[nq:], -Rm[:nq]])
+        dx_dm = linalg.solve(kkt(st["J"]), rhs)[:nq + n_z]
+        return finish(carry, d, values, x, ok, fine, carry.H, dx_dm, st["evals"], st["jacs"])
+
+    if len(measured) > n_z:
+        return init_ls, step_ls
+    return init, step
+
+
+@lru_cache(maxsize=CACHE_SIZE)
+def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
+            tension_columns: tuple[int, ...], refine_every: int = 1, step_tol: float = 1e-8):
+    """Compiled ``track(x0, drives, unknowns, values, varied) -> Track`` for a square system
+    (``len(measured) == n_z``) or least squares (more measured tendons); ``drives`` is a
+    :class:`Drive` and ``varied`` a dict of values by name
+    (:data:`~tendonsense.model.VALUE_NAMES`, may be empty), both with a leading sample axis.
+    The sensitivity columns are the measured lengths, then the tensions of the tendons
+    ``tension_columns``. A least-squares sample is stationary when its Gauss–Newton step in z
+    is below ``step_tol`` relative (a coarse value suits a profile that is refined later)."""
+    init, step = _sample_fns(structure, measured, n_z, tension_columns, refine_every, step_tol)
+
+    def track(x0, drives, unknowns, values, varied):
+        d0, p0 = jax.tree_util.tree_map(lambda a: a[0], (drives, varied))
+        carry = init(x0, d0, p0, unknowns, values)
+        _, out = jax.lax.scan(lambda c, dp: step(c, *dp, unknowns, values), carry,
+                              (drives, varied))
+        return out
+
+    return Program(track, "tracker", (structure, measured, n_z, tension_columns, refine_every,
+                                       step_tol))
+
+
+@lru_cache(maxsize=CACHE_SIZE)
+def stepper(structure: Structure, measured: tuple[int, ...], n_z: int,
+            tension_columns: tuple[int, ...], refine_every: int = 1):
+    """The tracker one sample at a time: compiled ``init(x0, d0, p0, unknowns, values)`` and
+    ``step(carry, d, p, unknowns, values) -> (carry, row)``, the row packed into one vector
+    (one transfer to the host; :func:`unpack_row`)."""
+    init, step = _sample_fns(structure, measured, n_z, tension_columns, refine_every)
+
+    def packed(carry, d, p, unknowns, values):
+        carry, row = step(carry, d, p, unknowns, values)
+        return carry, jnp.concatenate([jnp.ravel(a).astype(float) for a in row])
+
+    key = (structure, measured, n_z, tension_columns, refine_every)
+    return Program(init, "stepper_init", key), Program(packed, "stepper_step", key)
+
+
+def unpack_row(flat: np.ndarray, n_x: int, n_m: int, n_markers: int, n_t: int) -> Track:
+    """A :class:`Track` row from the packed vector of :func:`stepper` (numpy)."""
+    sizes = (n_x, 1, 1, 1, n_x * n_m, 3 * n_markers, n_t, 1)
+    x, conv, its, jacs, dx_dm, markers, y, fine = np.split(flat, np.cumsum(sizes)[:-1])
+    return Track(x, bool(conv[0]), int(its[0]), int(jacs[0]), dx_dm.reshape(n_x, n_m),
+                 markers.reshape(n_markers, 3), y, bool(fine[0]))
+
+
+def stacked_drives(prob: Problem, tensions: np.ndarray, targets: np.ndarray) -> Drive:
+    """The problem's drive for every row of ``tensions`` (N, n_t) and ``targets`` (N, n_m)."""
+    n = tensions.shape[0]
+    return Drive(jnp.asarray(tensions, float),
+                 jnp.asarray(np.broadcast_to(prob.known_forces, (n, *prob.known_forces.shape))),
+                 jnp.asarray(np.broadcast_to(prob.load_X, (n, *prob.load_X.shape))),
+                 jnp.asarray(np.broadcast_to(prob.gravity, (n, 3))), jnp.asarray(targets, float))

@@ -1,0 +1,162 @@
+"""The estimation problem (eq. 17): what is measured, what is unknown, how readings become
+vectors (by the rules of :mod:`tendonsense.inputs`), the known drive, how the measurements
+depend on the unknowns, and the 1-σ band of sensor noise. Below every solver of it
+(:mod:`~tendonsense.estimation`, :mod:`~tendonsense.fastpath`, :mod:`~tendonsense.online`,
+:mod:`~tendonsense.tracking`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from functools import cached_property, lru_cache
+from typing import Mapping, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import inputs
+from .compiled import Program
+from .forward import model_for
+from .inputs import GravityUnknown, Noise, PointForceUnknown, Unknown, check_point_forces
+from .model import Model, Structure, Values
+from .robot import Robot
+from .statics import CACHE_SIZE, Drive, Unknowns, terms
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """An estimation problem's fixed structure: the model, measured tendons, how the
+    unknowns enter and the known drive (without the measurements)."""
+
+    robot: Robot
+    model: Model
+    measured: tuple[int, ...]
+    unknowns: Unknowns
+    known_forces: np.ndarray  # (n_p, 3), zero where an unknown force acts
+    load_X: np.ndarray  # (n_p,) known forces, then the unknown ones
+    gravity: np.ndarray
+    #: for every located unknown: (index of its load in load_X, (A, B) range of X)
+    located: tuple[tuple[int, tuple[float, float]], ...] = ()
+
+    @property
+    def n_z(self) -> int:
+        """Extra unknowns of the solver: the magnitudes, then the located forces' X."""
+        return self.unknowns.gravity.shape[0]
+
+    @property
+    def n_magnitudes(self) -> int:
+        return self.n_z - len(self.located)
+
+    def fixed(self) -> "Problem":
+        """The problem with every located force held at the X of ``load_X`` (set it first
+        with :meth:`at`)."""
+        n = self.n_magnitudes
+        u = self.unknowns
+        return replace(self, unknowns=Unknowns(u.tensions[:, :n], u.forces[:n], u.gravity[:n],
+                                               u.positions[:0]), located=())
+
+    def at(self, X) -> "Problem":
+        """The problem with the located forces' reference X set to ``X`` (one per located)."""
+        load_X = self.load_X.copy()
+        for (i, _), x in zip(self.located, np.atleast_1d(X)):
+            load_X[i] = x
+        return replace(self, load_X=load_X)
+
+    def locations(self, x) -> np.ndarray:
+        """The located forces' X at the solution ``x = [q; magnitudes; X offsets]``."""
+        offsets = np.asarray(x)[len(x) - len(self.located):] if self.located else []
+        return np.array([self.load_X[i] + o for (i, _), o in zip(self.located, offsets)])
+
+    @cached_property
+    def rest_lengths(self) -> np.ndarray:
+        """Every tendon's path length on the straight rod (l* of eq. 9), m."""
+        return inputs.rest_lengths(self.robot)
+
+    def readings(self, displacements: Mapping[str, float], tensions: Mapping[str, float]
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """``(T, y)`` per tendon of one reading, by the rules of :mod:`tendonsense.inputs`;
+        every measured tendon needs its length change and its tension."""
+        names = self.robot.tendon_names
+        for j in self.measured:
+            if names[j] not in displacements:
+                raise ValueError(f"displacement {names[j]}: missing: the tendon is measured")
+        return inputs.readings(self.robot, displacements, tensions)
+
+    def reading_error(self, T: np.ndarray, y: np.ndarray) -> str | None:
+        """Why readings (tensions T, length changes y; per tendon) break the rules of
+        :mod:`tendonsense.inputs`, or None."""
+        return inputs.reading_error(self.robot, T, y, self.measured, self.rest_lengths)
+
+    def drive(self, tensions, targets) -> Drive:
+        return Drive(np.asarray(tensions, float), self.known_forces, self.load_X, self.gravity,
+                     np.asarray(targets, float))
+
+
+def problem(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
+            point_forces=()) -> Problem:
+    """Set up the estimation of ``unknowns`` from the tendons named in ``measured``."""
+    inputs.check_unknowns(robot, measured, unknowns)
+    n_p = len(unknowns)
+    n_loc = sum(isinstance(u, PointForceUnknown) and u.located for u in unknowns)
+    X_known, F_known = check_point_forces(robot, point_forces)
+    forces = [u for u in unknowns if isinstance(u, PointForceUnknown)]
+    L = robot.rod.length
+    ranges = []
+    for u in forces:
+        ranges.append((0.0, L) if u.X is None else (u.X if u.located else (u.X, u.X)))
+    n_known = len(X_known)
+    Fz = np.zeros((n_p + n_loc, n_known + len(forces), 3))
+    az = np.zeros((n_p + n_loc, 3))
+    Pz = np.zeros((n_loc, n_known + len(forces)))
+    gravity = np.array(robot.gravity, float)
+    k, located = 0, []
+    for i, u in enumerate(unknowns):
+        if isinstance(u, GravityUnknown):
+            az[i] = gravity
+            gravity = np.zeros(3)
+        else:
+            Fz[i, n_known + k] = u.direction
+            if u.located:  # z_{n_p + j} moves the force from its reference X
+                Pz[len(located), n_known + k] = 1.0
+                located.append((n_known + k, ranges[k]))
+            k += 1
+    F = np.concatenate([F_known, np.zeros((len(forces), 3))])
+    X = np.concatenate([X_known, [0.5 * (a + b) for a, b in ranges]])
+    unk = Unknowns(np.zeros((len(robot.tendons), n_p + n_loc)), Fz, az, Pz)
+    idx = tuple(robot.tendon_names.index(n) for n in measured)
+    return Problem(robot, model_for(robot), idx, unk, F, X, gravity, tuple(located))
+
+
+@lru_cache(maxsize=CACHE_SIZE)
+def _jacobians_fn(structure: Structure, measured: tuple[int, ...]):
+    """``(∂E/∂q, ∂E/∂z, ∂E/∂T, ∂y_meas/∂q)`` for the unscaled equilibrium ``E = Kq − BT − F``."""
+
+    def parts(q, z, T, drive, unknowns, values):
+        t = terms(structure, values, q, z, drive._replace(tensions=T), unknowns, 1.0)
+        E = values.young_modulus * (values.stiffness() @ q) - t.load
+        return E, t.y[np.array(measured, int)]
+
+    def jac(q, z, T, drive, unknowns, values):
+        (Eq, Ez, ET), (yq, _, _) = jax.jacfwd(parts, argnums=(0, 1, 2))(q, z, T, drive, unknowns,
+                                                                     values)
+        return Eq, Ez, ET, yq
+
+    return Program(jac, "jacobians", (structure, measured))
+
+
+def reduced_jacobians(prob: Problem, x, drive, values: Values):
+    """Reduced Jacobians of the measured lengths w.r.t. the magnitudes and the tensions, with
+    the equilibrium eliminated: ``dy/dz = −y_q E_q⁻¹ E_z``, ``dy/dT = −y_q E_q⁻¹ E_T``."""
+    nq = prob.model.nq
+    Eq, Ez, ET, yq = (np.asarray(a) for a in _jacobians_fn(prob.model.structure, prob.measured)(
+        jnp.asarray(x[:nq]), jnp.asarray(x[nq:]), drive.tensions, drive, prob.unknowns, values))
+    sol = np.linalg.solve(Eq, np.concatenate([Ez, ET], axis=1))
+    return -yq @ sol[:, :prob.n_z], -yq @ sol[:, prob.n_z:]
+
+
+def band(dz_dm: np.ndarray, n_lengths: int, tensions: np.ndarray, noise: Noise) -> np.ndarray:
+    """1-σ band of the magnitudes from their sensitivity ``dz_dm`` to [lengths; tensions]
+    (first-order propagation of the sensor noise, as in :mod:`tendonsense.estimation`)."""
+    scale = np.concatenate([np.full(n_lengths, noise.length),
+                            noise.tension * np.abs(tensions)])
+    return np.sqrt(((dz_dm * scale) ** 2).sum(axis=1))
