@@ -134,7 +134,7 @@ def test_continuous_tendons_in_the_inverse_problems(peer):
     fk = forward_kinematics(rough, {"t1": truth.displacements["t1"]}, {"t2": 4.0}, [(0.5, f)])
     assert fk.converged and fk.tensions["t1"] == pytest.approx(15.0, rel=1e-8)
     est = estimate(rough, {n: truth.displacements[n] for n in ("t1", "t2", "t3")},
-                   {"t1": 15.0, "t2": 4.0}, [PointForceUnknown(0.5, f)])
+                   {"t1": 15.0, "t2": 4.0, "t3": 0.0}, [PointForceUnknown(0.5, f)])
     assert est.converged and est.magnitudes[0] == pytest.approx(np.linalg.norm(f), rel=1e-6)
 
 
@@ -149,7 +149,7 @@ def test_continuous_tendons_in_logs_and_calibration(peer):
     F = np.linspace(0.1, 0.5, 6)
     disp, ten = [], []
     for k, f in enumerate(F):
-        T = {"t1": 10.0 + k, "t2": 3.0}
+        T = {"t1": 10.0 + k, "t2": 3.0, "t3": 0.0}
         res = solve(rough, T, [(0.5, (0.0, 0.0, -f))])
         disp.append({n: res.displacements[n] for n in ("t1", "t2", "t3")})
         ten.append(T)
