@@ -81,11 +81,11 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
     except StopIteration:
         raise ReadingsError(f"{source}: no header row") from None
     columns = parse_header(header, robot, source)
-    online = online_estimator(robot, columns.measured, unknowns, point_forces, noise)
     writer = csv.writer(out)
     with_shape = bool(columns.markers)
     writer.writerow(output_header(robot, len(unknowns), with_shape, located(unknowns)))
     out.flush()
+    online = online_estimator(robot, columns.measured, unknowns, point_forces, noise)
     rows = good = 0
     for i, raw in enumerate(reader, start=1):
         if not any(c.strip() for c in raw):
