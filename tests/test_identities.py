@@ -143,9 +143,11 @@ def test_pullback_is_the_transposed_body_jacobian(prototype, elements):
     c_nu = jnp.asarray(rng.normal(size=(v.h.shape[0], 2, 3)))
     w_points = jnp.asarray(rng.normal(size=(X.shape[0], 6)))
 
+    @jax.jit  # one program each: evaluated op by op, this test took minutes
     def ours(q, X):
         return configuration(v, q, points_at(s, v, X))[1]((w_grid, c_nu, w_points))
 
+    @jax.jit
     def theirs(q, X):
         grid, points = grid_frames(s, v, q, points_at(s, v, X))
         stretch = jax.vjp(lambda q: end_stretches(v, q), q)[1](c_nu)[0]
@@ -157,8 +159,8 @@ def test_pullback_is_the_transposed_body_jacobian(prototype, elements):
     np.testing.assert_allclose(ours(q, X), expected, rtol=0,
                                atol=1e-11 * np.abs(expected).max())
     for arg in (0, 1):
-        a = jax.jacfwd(ours, argnums=arg)(q, X)
-        b = jax.jacfwd(theirs, argnums=arg)(q, X)
+        a = jax.jit(jax.jacfwd(ours, argnums=arg))(q, X)
+        b = jax.jit(jax.jacfwd(theirs, argnums=arg))(q, X)
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-10 * np.abs(b).max())
 
     def plain(q):
@@ -172,7 +174,8 @@ def test_pullback_is_the_transposed_body_jacobian(prototype, elements):
             omega(q, p.h, p.Phi1, p.Phi2))
 
     tq = jnp.asarray(rng.normal(size=q.shape))
-    a = jax.jvp(lambda q: configuration(v, q, points_at(s, v, X))[0], (q,), (tq,))
-    b = jax.jvp(plain, (q,), (tq,))
+    a = jax.jit(lambda q: jax.jvp(lambda q: configuration(v, q, points_at(s, v, X))[0], (q,),
+                                  (tq,)))(q)
+    b = jax.jit(lambda q: jax.jvp(plain, (q,), (tq,)))(q)
     for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)):
         np.testing.assert_allclose(x, y, rtol=0, atol=1e-11 * np.abs(y).max())

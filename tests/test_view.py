@@ -47,8 +47,10 @@ FLAGS = ["--headless=new", "--no-sandbox", "--use-angle=swiftshader",
          "--window-size=1280,800",
          # Chromium's own background traffic (found with the proxy trap below)
          "--disable-features=AutofillServerCommunication,NetworkTimeServiceQuerying,"
-         "OptimizationHints",
-         "--gaia-url=http://127.0.0.1:9", "--component-updater=url-source=http://127.0.0.1:9"]
+         "OptimizationHints,AimEnabled",
+         "--gaia-url=http://127.0.0.1:9", "--component-updater=url-source=http://127.0.0.1:9",
+         "--gcm-checkin-url=http://127.0.0.1:9", "--gcm-registration-url=http://127.0.0.1:9",
+         "--gcm-mcs-endpoint=http://127.0.0.1:9"]
 PREFS = {"session.restore_on_startup": 4, "session.startup_urls": ["about:blank"]}
 
 
