@@ -161,3 +161,38 @@ def test_implicit_derivatives_match_finite_differences(prototype, name, step):
     exact = exact.reshape(-1)
     assert np.abs(exact).max() > 1e-8
     np.testing.assert_allclose(exact, fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
+
+
+LOCK_SCRIPT = """
+import sys, time
+import jax, numpy as np
+from tendonsense import compiled
+compiles = []
+original = jax.stages.Lowered.compile
+def slow(self, *a, **k):
+    compiles.append(1)
+    time.sleep(3.0)  # a long compile: the other process arrives while it runs
+    return original(self, *a, **k)
+jax.stages.Lowered.compile = slow
+program = compiled.Program(lambda x: 2.0 * x + 1.0, "lock_test", "key")
+out = program(np.arange(3.0))
+print(len(compiles), float(out.sum()))
+"""
+
+
+def test_two_processes_compile_a_program_once(tmp_path):
+    """Two processes that need the same program at once: one compiles it, the other waits and
+    loads the kept executable."""
+    import os
+    import subprocess
+    import sys
+    env = dict(os.environ, TENDONSENSE_CACHE_DIR=str(tmp_path))
+    procs = [subprocess.Popen([sys.executable, "-c", LOCK_SCRIPT], env=env, text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+             for _ in range(2)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    assert all(p.returncode == 0 for p in procs), outs
+    counts = sorted(int(out.split()[0]) for out, _ in outs)
+    assert counts == [0, 1], outs
+    assert all(float(out.split()[1]) == 9.0 for out, _ in outs)
+    assert len(list((tmp_path / "programs").glob("lock_test-*.exe"))) == 1

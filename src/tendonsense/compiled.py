@@ -16,6 +16,7 @@ import platform
 import tempfile
 import threading
 import weakref
+from contextlib import contextmanager
 from functools import lru_cache
 from pathlib import Path
 
@@ -82,11 +83,16 @@ class Program:
             return _deserialize(path.read_bytes())
         except Exception:  # none kept yet, or unreadable: compile, and keep it
             pass
-        compiled = self.jitted.lower(*args).compile()
-        try:
-            _write_atomic(path, _serialize(compiled))
-        except Exception:  # an executable that cannot be kept still runs
-            pass
+        with _compiling_elsewhere(path):  # another process compiling it: wait, then load
+            try:
+                return _deserialize(path.read_bytes())
+            except Exception:
+                pass
+            compiled = self.jitted.lower(*args).compile()
+            try:
+                _write_atomic(path, _serialize(compiled))
+            except Exception:  # an executable that cannot be kept still runs
+                pass
         return compiled
 
 
@@ -120,6 +126,26 @@ def _signature(args) -> tuple:
     leaves, tree = jax.tree_util.tree_flatten(args)
     return tree, tuple((np.shape(a), a.dtype if hasattr(a, "dtype") else np.result_type(a),
                         getattr(a, "weak_type", not hasattr(a, "dtype"))) for a in leaves)
+
+
+@contextmanager
+def _compiling_elsewhere(path: Path):
+    """Held while this process compiles the program kept at ``path``: a process that needs
+    the same program waits for it (an advisory lock beside the file, where the OS has one)
+    instead of compiling it twice."""
+    try:
+        import fcntl
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fh = open(path.with_suffix(".lock"), "a")
+    except (ImportError, OSError):
+        yield
+        return
+    with fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX)
+        except OSError:
+            pass
+        yield  # closing the file releases the lock
 
 
 def _write_atomic(path: Path, data: bytes):
