@@ -2,8 +2,9 @@
 structure and argument signature, its executable serialised into the cache directory
 (:mod:`tendonsense.settings`), and later processes load the executable instead of tracing,
 lowering and compiling it again. A kept program is keyed by its name, the structure, the
-argument signature, the machine (platform and CPU) and a hash of this package's source and of
-the JAX version, so that an edited model never runs a stale program. Without a cache
+argument signature, the machine (platform and CPU), XLA's flags and a hash of this package's
+source and of the JAX version, so that an edited model never runs a stale program; a process
+that needs a program another is compiling waits for it. Without a cache
 directory, or if an executable cannot be kept, it is plain :func:`jax.jit`.
 """
 
@@ -28,8 +29,10 @@ from .settings import cache_dir
 
 @lru_cache(maxsize=1)
 def _source_hash() -> str:
-    """This package's source, the JAX version and the machine the executables run on."""
-    h = hashlib.sha256(f"{jax.__version__}|{platform.machine()}|{_cpu_flags()}".encode())
+    """This package's source, the JAX version, XLA's flags and the machine the executables
+    run on."""
+    h = hashlib.sha256(f"{jax.__version__}|{os.environ.get('XLA_FLAGS', '')}|"
+                       f"{platform.machine()}|{_cpu_flags()}".encode())
     for f in sorted(Path(__file__).parent.glob("*.py")):
         h.update(f.read_bytes())
     return h.hexdigest()[:16]
