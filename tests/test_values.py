@@ -2,6 +2,9 @@
 X, batched solves and exact derivatives with respect to the values."""
 
 import dataclasses
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -183,9 +186,6 @@ print(len(compiles), float(out.sum()))
 def test_two_processes_compile_a_program_once(tmp_path):
     """Two processes that need the same program at once: one compiles it, the other waits and
     loads the kept executable."""
-    import os
-    import subprocess
-    import sys
     env = dict(os.environ, TENDONSENSE_CACHE_DIR=str(tmp_path))
     procs = [subprocess.Popen([sys.executable, "-c", LOCK_SCRIPT], env=env, text=True,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)

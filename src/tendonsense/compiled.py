@@ -82,15 +82,13 @@ class Program:
         digest = hashlib.sha256(f"{self.name}|{self.key}|{tree}|{described}|{_source_hash()}"
                                 .encode()).hexdigest()[:32]
         path = root / "programs" / f"{self.name}-{digest}.exe"
-        try:
-            return _deserialize(path.read_bytes())
-        except Exception:  # none kept yet, or unreadable: compile, and keep it
-            pass
+        kept = _kept(path)
+        if kept is not None:
+            return kept
         with _compiling_elsewhere(path):  # another process compiling it: wait, then load
-            try:
-                return _deserialize(path.read_bytes())
-            except Exception:
-                pass
+            kept = _kept(path)
+            if kept is not None:
+                return kept
             compiled = self.jitted.lower(*args).compile()
             try:
                 _write_atomic(path, _serialize(compiled))
@@ -109,6 +107,14 @@ def release() -> None:
     with _COMPILING:
         for program in list(_PROGRAMS):
             program.loaded.clear()
+
+
+def _kept(path: Path):
+    """The executable kept at ``path``, or None (none kept yet, or unreadable)."""
+    try:
+        return _deserialize(path.read_bytes())
+    except Exception:
+        return None
 
 
 def _serialize(compiled) -> bytes:
