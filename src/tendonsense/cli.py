@@ -286,6 +286,40 @@ def build_parser() -> argparse.ArgumentParser:
                   "paper_prototype.toml")
     _experiments_table(p)
 
+    p = command("simulate", "the rod's motion under tensions over time, and the readings log it "
+                "gives (forward dynamics)",
+                "Simulate the robot from the straight rod at rest at t = 0 (gravity and the given "
+                "loads acting from then on) with its inertia and [rod] damping, and write the "
+                "readings log a robot would record: time, tension_<name>, displacement_<name>, "
+                "marker_<name>_x/_y/_z, the format estimate --readings reads. Read-out noise "
+                "on request, to rehearse an experiment.")
+    _common(p)
+    p.add_argument("--tension", action="append", default=[], type=_assignment,
+                   metavar="NAME=N",
+                   help="a tendon's tension in newtons (>= 0), held constant; tendons not named "
+                        "(here or in --tensions) are slack")
+    p.add_argument("--tensions", metavar="TENSIONS.csv",
+                   help="tensions over time: a CSV with time (s) and tension_<name> columns, "
+                        "linear between rows, the last row held")
+    p.add_argument("--duration", type=_positive, required=True, metavar="S",
+                   help="simulated time, s")
+    p.add_argument("--output-dt", type=_positive, default=0.01, metavar="S",
+                   help="time between two rows of the log, s (default 0.01)")
+    p.add_argument("--max-step", type=_positive, default=2e-3, metavar="S",
+                   help="the longest integration step, s (default 0.002)")
+    p.add_argument("--no-inertia", action="store_true",
+                   help="leave out inertia (the quasi-static limit with damping; needs "
+                        "[rod] damping > 0)")
+    p.add_argument("--noise-length", type=float, default=0.0, metavar="M",
+                   help="read-out noise of the length changes, standard deviation in m "
+                        "(default 0)")
+    p.add_argument("--noise-tension", type=float, default=0.0, metavar="FRACTION",
+                   help="read-out noise of the tensions, relative standard deviation "
+                        "(default 0)")
+    p.add_argument("--seed", type=int, default=None, help="the noise's random seed")
+    p.add_argument("-o", "--log", required=True, metavar="LOG.csv",
+                   help="the readings log to write (atomically)")
+
     p = command("experiments", "re-run the paper's experiments (its Tables II to IV)",
                 "Estimate every row of the paper's experiments and compare with the applied "
                 "loads and the paper's own estimates.")
@@ -369,6 +403,8 @@ def _check(args, robot) -> None:
         args.tension, args.displacement = tensions, displacements
         if args.plot:
             _writable(args.plot, "--plot")
+    elif cmd == "simulate":
+        _check_simulate(args, robot)
     elif cmd == "identify":
         from .readings import read_snapshots
         bad = [p for p in args.param or () if p not in inputs.parameter_names(robot)]
@@ -383,6 +419,31 @@ def _check(args, robot) -> None:
         raise ValueError(f"{args.csv}: no such file")
     if (cmd == "view" or getattr(args, "view", False)) and not 0 < args.port < 65536:
         raise UsageError(f"tendonsense {cmd}: --port {args.port}: not a port number")
+
+
+def _check_simulate(args, robot):
+    from .readings import read_tension_schedule
+    args.tension = _once(args.tension, "--tension")
+    inputs.tensions(robot, args.tension)
+    inputs.check_point_forces(robot, _point_forces(args))
+    schedule = read_tension_schedule(args.tensions, robot) if args.tensions else {}
+    both = [n for n in schedule if n in args.tension]
+    if both:
+        raise UsageError(f"tendonsense simulate: tendon {both[0]}: in --tensions and --tension")
+    args.schedule = {**args.tension, **schedule}
+    for flag, v in (("--noise-length", args.noise_length), ("--noise-tension", args.noise_tension)):
+        if not (0 <= v < float("inf")):
+            raise ValueError(f"{flag} {v:g}: must be a finite number >= 0")
+    if args.output_dt > args.duration:
+        raise ValueError(f"--output-dt {args.output_dt:g} s is longer than --duration "
+                         f"{args.duration:g} s")
+    if args.no_inertia and robot.rod.damping <= 0:
+        raise ValueError(f"--no-inertia needs [rod] damping > 0 in {args.robot} (without "
+                         f"inertia or damping every instant is the static equilibrium: use "
+                         f"solve)")
+    _writable(args.log, "-o/--log")
+    if args.plot:
+        _writable(args.plot, "--plot")
 
 
 def _check_estimate(args, robot, tensions, displacements):
@@ -582,12 +643,6 @@ def _summary_text(command: str, summary: dict) -> str:
                          f"({v['converged']}/{v['rows']} rows converged; the paper's own "
                          f"estimates: {pct(v['mean_relative_error_paper'])})")
     return "\n".join(lines)
-
-
-def _vector(v) -> str:
-    return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
-
-
 
 
 def _vector(v) -> str:
@@ -929,8 +984,38 @@ def _identify(args, robot) -> bool:
     return fit.converged
 
 
+def _simulate(args, robot) -> bool:
+    from .readings import write_csv_atomic
+    from .simulation import simulate
+    sim = simulate(robot, args.schedule, _point_forces(args), duration=args.duration,
+                   output_dt=args.output_dt, max_step=args.max_step,
+                   inertia=not args.no_inertia)
+    cols = sim.readings(args.noise_length, args.noise_tension, args.seed)
+    write_csv_atomic(args.log, list(cols), np.column_stack(list(cols.values())).tolist())
+    if args.plot:
+        from . import plotting
+        plotting.simulation(sim, args.plot, title=f"{robot.name}: simulated motion")
+    if args.json:
+        print(json.dumps({"time": sim.time.tolist(),
+                          "markers": {m: p.tolist() for m, p in sim.markers.items()},
+                          "displacements": {n: y.tolist() for n, y in sim.displacements.items()},
+                          "converged": sim.ok}))
+    else:
+        tip = robot.marker_names[-1] if robot.marker_names else None
+        print(f"simulated {sim.time[-1]:g} s in {sim.time.size - 1} steps of "
+              f"{args.output_dt:g} s; wrote {args.log}" + (f", {args.plot}" if args.plot else ""))
+        if tip:
+            print(f"marker {tip} at the end: {_vector(sim.markers[tip][-1])} m")
+        for n, y in sim.displacements.items():
+            print(f"tendon {n}: length change at the end {y[-1] * 1e3:+.3f} mm")
+        if not sim.ok:
+            print(f"NOT CONVERGED at {int(np.sum(~sim.converged))} of {sim.time.size} samples "
+                  f"(from t = {sim.time[np.argmin(sim.converged)]:g} s)")
+    return sim.ok
+
+
 RUN = {"solve": _single, "fk": _single, "view": _view, "identify": _identify,
-       "experiments": _experiments}
+       "experiments": _experiments, "simulate": _simulate}
 
 
 def main(argv=None) -> int:

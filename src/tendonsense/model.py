@@ -109,6 +109,7 @@ class Values(NamedTuple):
     young_modulus: jax.Array
     poisson_ratio: jax.Array
     density: jax.Array
+    damping: jax.Array  # Kelvin–Voigt viscosity η, Pa·s
     friction: jax.Array  # (n_t,) Capstan μ per tendon
     energy_floor: jax.Array  # residual floor per √E (an absolute tolerance)
 
@@ -120,9 +121,14 @@ class Values(NamedTuple):
         """``K`` per unit E (eq. 8a, ``G = E / 2(1 + ν)``)."""
         return self.K_axial + self.K_shear / (2.0 * (1.0 + self.poisson_ratio))
 
+    def damping_matrix(self):
+        """``D = ∫ Φᵀ Υ Φ dX``, ``Υ = η diag(Jx, 3Jy, 3Jz, 3A, A, A)`` (SPEC §5): the viscous
+        analogue of K for an incompressible material, so that ``D = 3η/E · K`` at ν = 0.5."""
+        return self.damping * (3.0 * self.K_axial + self.K_shear)
+
 
 #: values a user may vary at run time by name (:meth:`Model.with_values`, batched solves)
-VALUE_NAMES = ("young_modulus", "poisson_ratio", "density", "friction")
+VALUE_NAMES = ("young_modulus", "poisson_ratio", "density", "damping", "friction")
 
 
 @dataclass(frozen=True, eq=False)
@@ -219,6 +225,7 @@ class Model:
             masses=np.array([m.mass for m in robot.masses], float),
             base=base, young_modulus=np.float64(rod.young_modulus),
             poisson_ratio=np.float64(rod.poisson_ratio), density=np.float64(rod.density),
+            damping=np.float64(rod.damping),
             friction=np.array([t.friction for t in robot.tendons], float).reshape(-1),
             energy_floor=np.float64(1e-6 * np.sqrt(r0**4 / L)))
         structure = Structure(tuple(robot.strain), tuple(groups), len(robot.tendons),

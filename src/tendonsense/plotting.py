@@ -519,3 +519,36 @@ def calibration(fit, path):
                          (" and leave-one-out prediction" if fit.crossval else ""))
     fig.tight_layout()
     return _save(fig, path)
+
+
+def simulation(sim, path, title: str = "simulated motion"):
+    """A simulated motion over time: the tensions (N), the tendon length changes (mm) and the
+    last marker's position relative to its start (mm); samples that did not converge shaded."""
+    t = sim.time
+    fig, axes = plt.subplots(3, 1, figsize=(7.5, 7), sharex=True)
+    for n, T in sim.tensions.items():
+        axes[0].plot(t, T, label=n)
+    axes[0].set_ylabel("tension (N)")
+    for n, y in sim.displacements.items():
+        axes[1].plot(t, y * 1e3, label=n)
+    axes[1].set_ylabel("length change (mm)\n(negative = pulled in)")
+    if sim.markers:
+        name, p = list(sim.markers.items())[-1]
+        for i, a in enumerate("xyz"):
+            axes[2].plot(t, (p[:, i] - p[0, i]) * 1e3, label=a)
+        axes[2].set_ylabel(f"marker {name}:\nmove from start (mm)")
+    else:
+        axes[2].set_visible(False)
+    bad = ~np.asarray(sim.converged)
+    for ax in axes:
+        if bad.any():
+            for k in np.flatnonzero(bad):
+                ax.axvspan(t[max(k - 1, 0)], t[k], color="tab:red", alpha=0.2, lw=0)
+        if ax.get_visible():
+            ax.legend(fontsize=8, loc="best")
+            ax.grid(alpha=0.3)
+    axes[-1 if sim.markers else 1].set_xlabel("time (s)")
+    axes[0].set_title(title + ("" if not bad.any() else
+                               f" — NOT CONVERGED at {int(bad.sum())} samples (shaded)"))
+    fig.tight_layout()
+    return _save(fig, path)

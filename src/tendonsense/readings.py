@@ -336,3 +336,42 @@ class AtomicText(io.TextIOWrapper):
     def __exit__(self, *exc):
         self.close()
 
+
+
+def read_tension_schedule(path: str | Path, robot: Robot) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Tensions over time for :func:`~tendonsense.simulation.simulate`: a CSV with ``time``
+    (s, increasing) and ``tension_<name>`` for some tendons; {name: (times, tensions)}.
+    Every value is checked by the rules of :mod:`tendonsense.inputs`."""
+    path = Path(path)
+    rows = read_csv_rows(path, ReadingsError)
+    if not rows:
+        raise ReadingsError(f"{path}: empty file (expected a header with time and "
+                            f"tension_<tendon> columns)")
+    header = [h.strip() for h in rows[0]]
+    names = [h.removeprefix("tension_") for h in header if h.startswith("tension_")]
+    bad = [h for h in header if h != "time" and h.removeprefix("tension_") not in
+           robot.tendon_names]
+    if bad:
+        raise ReadingsError(f"{path}: column {bad[0]!r}: not time or tension_<tendon> (tendons: "
+                            f"{', '.join(robot.tendon_names)})")
+    if "time" not in header or not names:
+        raise ReadingsError(f"{path}: needs a time column and at least one tension_<tendon>")
+    if len(rows) < 2:
+        raise ReadingsError(f"{path}: no rows after the header")
+    data = np.empty((len(rows) - 1, len(header)))
+    for i, raw in enumerate(rows[1:], start=1):
+        if len(raw) != len(header):
+            raise ReadingsError(f"{path}: row {i}: {len(raw)} values for {len(header)} columns")
+        for j, (col, text) in enumerate(zip(header, raw)):
+            try:
+                data[i - 1, j] = float(text)
+            except ValueError:
+                raise ReadingsError(f"{path}: row {i}, {col}: not a number: {text!r}") from None
+            if not math.isfinite(data[i - 1, j]):
+                raise ReadingsError(f"{path}: row {i}, {col}: not a finite number")
+            if col != "time" and (error := tension_error(col[8:], data[i - 1, j])):
+                raise ReadingsError(f"{path}: row {i}: {error}")
+    t = data[:, header.index("time")]
+    if np.any(np.diff(t) <= 0) or t[0] < 0:
+        raise ReadingsError(f"{path}: time must start at >= 0 s and increase from row to row")
+    return {n: (t, data[:, header.index(f"tension_{n}")]) for n in names}

@@ -323,7 +323,7 @@ def _unique(names, what, reader):
 
 def _parse_rod(r: _Reader) -> Rod:
     r.check_keys(("length", "radius", "young_modulus", "poisson_ratio", "density",
-                  "disk_radius"))
+                  "disk_radius", "damping"))
     L = r.number("length", low=0.0, low_open=True)
     if not r.has("radius"):
         r.fail("radius", "missing")
@@ -351,7 +351,8 @@ def _parse_rod(r: _Reader) -> Rod:
                               f"the rod ({widest:g} m)")
     return Rod(L, tuple(knots), r.number("young_modulus", low=0.0, low_open=True),
                r.number("poisson_ratio", low=-1.0, high=0.5, low_open=True),
-               r.number("density", low=0.0), disk_radius)
+               r.number("density", low=0.0), disk_radius,
+               r.number("damping", default=0.0, low=0.0))
 
 
 def _parse_tendon(r: _Reader, rod: Rod) -> Tendon:
@@ -423,6 +424,8 @@ def robot_to_toml(robot: Robot) -> str:
               f"density = {f(rod.density)}"]
     if rod.disk_radius is not None:
         lines.append(f"disk_radius = {f(rod.disk_radius)}")
+    if rod.damping:
+        lines.append(f"damping = {f(rod.damping)}")
     lines += ["", "[strain]"]
     lines += [f"{m} = {d}" for m, d in robot.strain]
     if robot.elements:

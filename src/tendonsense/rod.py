@@ -10,7 +10,8 @@ import numpy as np
 @dataclass(frozen=True)
 class Rod:
     """A Cosserat rod of length ``length`` whose radius is linear between ``radius_knots``
-    ``((0, r0), ..., (L, rn))``; linear elastic, ``G = E / (2 (1 + ν))``."""
+    ``((0, r0), ..., (L, rn))``; linear elastic, ``G = E / (2 (1 + ν))``, with Kelvin–Voigt
+    damping of viscosity ``damping``."""
 
     length: float
     radius_knots: tuple[tuple[float, float], ...]
@@ -18,6 +19,7 @@ class Rod:
     poisson_ratio: float
     density: float
     disk_radius: float | None = None  # spacer disks wider than the rod; None: tendons inside
+    damping: float = 0.0  # Kelvin–Voigt viscosity η, Pa·s
 
     def radius(self, X) -> np.ndarray:
         Xk, rk = np.array(self.radius_knots).T

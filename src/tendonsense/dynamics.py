@@ -1,0 +1,304 @@
+"""Rod dynamics ``M(q) q̈ + C(q, q̇) q̇ + D q̇ + K q = B(q) T + F(q)`` (SPEC §5) in GVS form, and
+its time integration.
+
+The inertial force ``M(q) q̈ + C(q, q̇) q̇ = ∫ Jᵀ (M_ρ η̇ − ad_ηᵀ M_ρ η) dX`` with the screw
+inertia density ``M_ρ = ρ diag(Jx, Jy, Jz, A, A, A)`` (two-point Gauss per grid interval) plus
+the lumped masses, pulled back like every other load; ``D`` is the Kelvin–Voigt
+damping matrix (:meth:`~tendonsense.model.Values.damping_matrix`); the tendons' and the loads'
+generalized force is the statics' (eq. 7, 8b, 14).
+
+Integration: TR-BDF2 (a trapezoidal stage to ``t + γh``, a BDF2 stage to ``t + h``,
+``γ = 2 − √2``): second order, L-stable, so that the stiff, heavily damped axial and shear modes
+of a slender rod decay instead of ringing; both stages share one iteration matrix shape and are
+solved by Newton's method with the exact Jacobian and an Armijo line search. A step whose
+Newton iteration fails is retried in halves. Without inertia (the quasi-static limit with
+damping) the state is q alone: ``D q̇ = B T + F − K q``.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .compiled import Program
+from .kinematics import configuration, poses, positions
+from .lie import ad_apply, skew
+from .model import Structure, Values, points_at
+from .statics import CACHE_SIZE, Drive, Unknowns, admissible, scaling, terms
+from .tendons import length_changes
+
+_Z = np.sqrt(3.0) / 6.0
+GAMMA = 2.0 - np.sqrt(2.0)
+_KAPPA = GAMMA / 2.0  # = (1 − γ)/(2 − γ): both stages solve y = base + κh ẏ(y)
+_B1 = 1.0 / (GAMMA * (2.0 - GAMMA))
+_B0 = (1.0 - GAMMA) ** 2 / (GAMMA * (2.0 - GAMMA))
+
+#: halvings of a step whose Newton iteration fails before the sample is marked failed
+MAX_HALVINGS = 6
+
+
+def _inertia_points(structure: Structure, values: Values):
+    """The points of the mass quadrature (the two Zannah points of every grid interval, then
+    the lumped masses) and their screw inertias ``w M_ρ`` (n, 6, 6) in the body frame."""
+    h = values.h
+    X = jnp.stack([values.nodes[:-1] + (0.5 - _Z) * h, values.nodes[:-1] + (0.5 + _Z) * h],
+                  axis=1).ravel()
+    r = values.radius_z.ravel()
+    area, inertia = np.pi * r**2, np.pi * r**4 / 4.0
+    weight = values.density * jnp.repeat(h / 2, 2)
+    M = jax.vmap(jnp.diag)(weight[:, None] * jnp.stack(
+        [2 * inertia, inertia, inertia, area, area, area], 1))
+    sets = [points_at(structure, values, X)]
+    if values.masses.shape[0]:  # m [−d̂, I]ᵀ[−d̂, I]: the centre moves with v + ω × d
+        d = values.mass_offsets
+        P = jnp.concatenate([-jax.vmap(skew)(d), jnp.broadcast_to(jnp.eye(3), d.shape + (3,))],
+                            axis=2)
+        M = jnp.concatenate([M, values.masses[:, None, None] * jnp.swapaxes(P, 1, 2) @ P])
+        sets.append(points_at(structure, values, values.mass_X))
+    return sets, M
+
+
+def _twists(values: Values, sets, q, v):
+    """Body twists ``η = (g⁻¹ ġ)ˇ`` (n, 6) at the points of ``sets`` for ``q̇ = v``."""
+    def at(q):
+        return jnp.concatenate(poses(values, q, *sets)[1:])
+
+    g, dg = jax.jvp(at, (q,), (v,))
+    R = g[:, :3, :3]
+    W = jnp.einsum("nji,njk->nik", R, dg[:, :3, :3])
+    omega = jnp.stack([W[:, 2, 1], W[:, 0, 2], W[:, 1, 0]], axis=1)
+    return jnp.concatenate([omega, jnp.einsum("nji,nj->ni", R, dg[:, :3, 3])], axis=1)
+
+
+def inertial_force(structure: Structure, values: Values, q, v, a):
+    """``M(q) q̈ + C(q, q̇) q̇ = ∫ Jᵀ (M_ρ η̇ − ad_ηᵀ M_ρ η) dX`` (+ the lumped masses): the
+    Newton–Euler wrench of every quadrature point pulled back through the configuration
+    (:func:`~tendonsense.kinematics.configuration`), η and η̇ by forward-mode derivatives of
+    the poses along the motion. No J is formed."""
+    sets, M = _inertia_points(structure, values)
+    eta, eta_dot = jax.jvp(lambda q, v: _twists(values, sets, q, v), (q, v), (v, a))
+    p = jnp.einsum("nij,nj->ni", M, eta)
+    w = jnp.einsum("nij,nj->ni", M, eta_dot) - ad_apply(eta, p, transpose=True)
+    (grid, nu, *_), pull = configuration(values, q, *sets)
+    sizes = np.cumsum([st.h.shape[0] for st in sets])[:-1]
+    return pull((jnp.zeros((grid.shape[0], 6)), jnp.zeros_like(nu), *jnp.split(w, sizes)))
+
+
+def mass_matrix(structure: Structure, values: Values, q):
+    """``M(q)`` (nq, nq), the Jacobian of :func:`inertial_force` in q̈."""
+    zero = jnp.zeros_like(q)
+    return jax.jacfwd(lambda a: inertial_force(structure, values, q, zero, a))(zero)
+
+
+def energy(structure: Structure, values: Values, q, v):
+    """Kinetic and elastic energy ``½ ∫ ηᵀ M_ρ η dX + ½ E qᵀ K q`` (J), without the loads'
+    work."""
+    sets, M = _inertia_points(structure, values)
+    eta = _twists(values, sets, q, v)
+    return (0.5 * jnp.einsum("ni,nij,nj->", eta, M, eta)
+            + 0.5 * values.young_modulus * q @ values.stiffness() @ q)
+
+
+class Schedule(NamedTuple):
+    """Known inputs over time, linear between the rows and held after the last: tensions
+    ``(k, n_t)`` at ``tension_times``; point forces ``(k', n_p, 3)`` (global) at
+    ``force_times`` acting at ``load_X``; gravity constant."""
+
+    tension_times: jax.Array
+    tensions: jax.Array
+    force_times: jax.Array
+    forces: jax.Array
+    load_X: jax.Array
+    gravity: jax.Array
+
+    def drive(self, t) -> Drive:
+        T = jax.vmap(lambda col: jnp.interp(t, self.tension_times, col), 1)(self.tensions)
+        F = jax.vmap(lambda col: jnp.interp(t, self.force_times, col), 1)(
+            self.forces.reshape(self.forces.shape[0], -1))
+        return Drive(T, F.reshape(self.forces.shape[1:]), self.load_X, self.gravity,
+                     jnp.zeros(0))
+
+
+def _load(structure, values, q, drive):
+    unknowns = Unknowns.none(structure.n_tendons, drive.load_X.shape[0])
+    return terms(structure, values, q, jnp.zeros(0), drive, unknowns, 1.0).load
+
+
+class State(NamedTuple):
+    """The integrator's state: time, q, v (q̇) and a (q̈; without inertia q̇ again), and the
+    LU factors of the last iteration matrix (reused while Newton converges fast)."""
+
+    t: jax.Array
+    q: jax.Array
+    v: jax.Array
+    a: jax.Array
+    lu: tuple
+
+
+def _equations(structure: Structure, values: Values, inertia: bool):
+    """``residual(q, base_q, base_v, κh, drive) -> (r, v, a)``: the stage equation
+    ``y = base + κh ẏ(y)`` with q the unknown, in force units (v and a follow from q), and
+    ``rate(q, v, drive)``: q̈ at a state (q̇ without inertia)."""
+    K = values.young_modulus * values.stiffness()
+    D = values.damping_matrix()
+
+    def residual(q, base_q, base_v, kh, drive):
+        v = (q - base_q) / kh
+        load = _load(structure, values, q, drive)
+        if not inertia:
+            return D @ v + K @ q - load, v, v
+        a = (v - base_v) / kh
+        return inertial_force(structure, values, q, v, a) + D @ v + K @ q - load, v, a
+
+    def rate(q, v, drive):
+        f = _load(structure, values, q, drive) - K @ q
+        if not inertia:
+            return jnp.linalg.solve(D, f)
+        f = f - D @ v - inertial_force(structure, values, q, v, jnp.zeros_like(v))
+        return jnp.linalg.solve(mass_matrix(structure, values, q), f)
+
+    return residual, rate
+
+
+@lru_cache(maxsize=CACHE_SIZE)
+def integrator(structure: Structure, inertia: bool):
+    """The compiled programs ``start(q, v, t, schedule, values) -> State`` and
+    ``run(state, times, n_sub, schedule, values) -> (state, samples)``: TR-BDF2 from ``state``
+    through every output time in ``times`` (``n_sub`` steps between two, a step that fails
+    retried in halves) and at each output time q, q̇, the marker positions, the tendon length
+    changes, whether every step converged and whether the strain is admissible.
+
+    Each stage is solved by Newton's method on q with the exact Jacobian, factored once and
+    reused over iterations, stages and steps while the residual falls at least tenfold per
+    iteration, refreshed otherwise (at most once per iteration); an Armijo line search on the
+    fresh Jacobian's steps."""
+    num = structure.numerics
+
+    def parts(values, schedule):
+        residual, rate = _equations(structure, values, inertia)
+        sc = scaling(values, ())
+        floor = values.energy_floor * jnp.sqrt(values.young_modulus)
+
+        def scaled(q, base_q, base_v, kh, t):
+            r, v, a = residual(q, base_q, base_v, kh, schedule.drive(t))
+            return sc.L_inv @ r, (v, a)
+
+        def factor(q, base_q, base_v, kh, t):
+            J = jax.jacfwd(lambda q: scaled(q, base_q, base_v, kh, t)[0])(q)
+            return jax.scipy.linalg.lu_factor(J)
+
+        def size(q):
+            return jnp.linalg.norm(sc.L_inv @ (values.young_modulus
+                                               * (values.stiffness() @ q))) + floor
+
+        return scaled, factor, size, rate
+
+    def run(state, times, n_sub, schedule: Schedule, values: Values):
+        scaled, factor, size, _ = parts(values, schedule)
+
+        def merit(r):
+            m = 0.5 * r @ r
+            return jnp.where(jnp.isfinite(m), m, jnp.inf)
+
+        def stage(q0, base_q, base_v, kh, t, lu):
+            """Newton on ``y = base + κh ẏ(y)`` from q0; (q, v, a, converged, LU)."""
+            args = (base_q, base_v, kh, t)
+
+            def body(st):
+                q, r, dq, alpha, fresh, lu, it, _, _ = st
+                qt = q + alpha * dq
+                rt, _ = scaled(qt, *args)
+                ok = merit(rt) <= (1 - 2e-4 * alpha) * merit(r)
+                conv = ok & (jnp.linalg.norm(rt) <= num.tolerance * size(qt))
+                slow = ok & (merit(rt) > 1e-2 * merit(r)) & (it > 0)
+                refresh = ~conv & ((~ok & ~fresh) | slow)
+                q, r = jnp.where(ok, qt, q), jnp.where(ok, rt, r)
+                lu = jax.lax.cond(refresh, lambda: factor(q, *args), lambda: lu)
+                step = ok | refresh
+                dq = jnp.where(step, jax.scipy.linalg.lu_solve(lu, -r), dq)
+                fail = ~step & (alpha < 2.0**-20)
+                return (q, r, dq, jnp.where(step, 1.0, alpha / 2), refresh, lu, it + 1,
+                        conv, fail)
+
+            def cond(st):
+                return ~st[7] & ~st[8] & (st[6] < num.max_iterations)
+
+            # the first pass evaluates the residual at q0 (a step of zero) and steps from it
+            inf = jnp.full_like(q0, jnp.inf)
+            st = (q0, inf, jnp.zeros_like(q0), jnp.asarray(0.0), jnp.asarray(False), lu,
+                  jnp.asarray(0), jnp.asarray(False), jnp.asarray(False))
+            st = jax.lax.while_loop(cond, body, st)
+            q = st[0]
+            v = (q - base_q) / kh
+            return q, v, (v - base_v) / kh if inertia else v, st[7], st[5]
+
+        def step(s: State, h):
+            """One TR-BDF2 step of length h; (new state, converged). Its two stages are one
+            loop of two passes (one copy of the stage in the program)."""
+            qd = s.v if inertia else s.a  # q̇ at the start
+            kh = _KAPPA * h
+
+            def one(c, k):
+                q1, v1, lu, ok = c
+                first = k == 0
+                base_q = jnp.where(first, s.q + kh * qd, _B1 * q1 - _B0 * s.q)
+                base_v = jnp.where(first, s.v + kh * s.a, _B1 * v1 - _B0 * s.v)
+                guess = jnp.where(first, s.q + 2 * kh * qd, q1 + (1 - GAMMA) * h * v1)
+                t = s.t + jnp.where(first, GAMMA, 1.0) * h
+                q, v, a, good, lu = stage(guess, base_q, base_v, kh, t, lu)
+                return (q, v, lu, ok & good), a
+
+            (q, v, lu, ok), a = jax.lax.scan(one, (s.q, s.v, s.lu, jnp.asarray(True)),
+                                             jnp.arange(2))
+            return State(s.t + h, q, v, a[1], lu), ok
+
+        def advance(s: State, t_end):
+            """From s to t_end in n_sub steps, a failing step retried in halves."""
+            h0 = (t_end - s.t) / n_sub
+
+            def cond(c):
+                s, h, halvings = c
+                return (s.t < t_end - 1e-9 * h0) & (halvings <= MAX_HALVINGS)
+
+            def body(c):
+                s, h, halvings = c
+                h = jnp.minimum(h, t_end - s.t)
+                new, good = step(s, h)
+                keep = s._replace(lu=new.lu)
+                s = jax.tree_util.tree_map(lambda a, b: jnp.where(good, a, b), new, keep)
+                h_next = jnp.where(good, jnp.minimum(2 * h, h0), h / 2)
+                halvings = jnp.where(good, jnp.maximum(halvings - 1, 0), halvings + 1)
+                return s, h_next, halvings
+
+            s, _, halvings = jax.lax.while_loop(cond, body, (s, h0, jnp.asarray(0)))
+            ok = halvings <= MAX_HALVINGS
+            return s._replace(t=jnp.where(ok, t_end, s.t)), ok
+
+        def sample(s: State, t_end):
+            s, ok = advance(s, t_end)
+            grid, mk = poses(values, s.q, points_at(structure, values, values.marker_X))
+            out = (s.q, s.v, positions(mk, values.marker_offsets),
+                   length_changes(structure, values, grid, s.q), ok & jnp.all(jnp.isfinite(s.q)),
+                   admissible(values, s.q))
+            return s, out
+
+        return jax.lax.scan(sample, state, times)
+
+    def start(q, v, t, h, schedule: Schedule, values: Values):
+        """The state at ``(q, v)`` at time t with its acceleration (without inertia v is not
+        free: v and a are both the q̇ of the damped motion) and the iteration matrix of a step
+        h from there."""
+        scaled, factor, _, rate = parts(values, schedule)
+        a = rate(q, v, schedule.drive(t))
+        v = v if inertia else a
+        kh = _KAPPA * h
+        qd = v if inertia else a
+        lu = factor(q + 2 * kh * qd, q + kh * qd, v + kh * a, kh, t + GAMMA * h)
+        return State(t, q, v, a, lu)
+
+    key = (structure, inertia)
+    return Program(start, "dynamics_start", key), Program(run, "dynamics", key)

@@ -1,0 +1,158 @@
+"""Forward dynamics over time (SPEC §5): tendon tensions and known forces over time → the
+rod's motion and the readings a robot would log (``time``, ``tension_<name>``,
+``displacement_<name>``, ``marker_<name>_x/_y/_z``), with read-out noise when asked, so that an
+experiment can be rehearsed before it is run (:func:`simulate`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from . import inputs
+from .dynamics import Schedule, integrator
+from .forward import model_for
+from .robot import Robot
+from .statics import shape_outputs
+
+#: output samples per call of the compiled integrator (the last call padded)
+CHUNK = 250
+
+#: the default longest integration step, s (a step never spans two output times)
+MAX_STEP = 2e-3
+
+
+@dataclass(frozen=True, eq=False)
+class Simulation:
+    """A simulated motion, one row per output time: ``q`` and ``v`` (q̇) ``(n, nq)``, the
+    tensions (N), tendon length changes (m) and marker positions ``(n, 3)`` (global, m) by name;
+    ``converged`` per sample (every step solved, the strain in the model's range)."""
+
+    time: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    tensions: dict[str, np.ndarray]
+    displacements: dict[str, np.ndarray]
+    markers: dict[str, np.ndarray]
+    converged: np.ndarray
+
+    @property
+    def ok(self) -> bool:
+        return bool(np.all(self.converged))
+
+    def readings(self, noise_length: float = 0.0, noise_tension: float = 0.0,
+                 seed: int | None = None) -> dict[str, np.ndarray]:
+        """The readings log's columns (SPEC §4): Gaussian read-out noise of ``noise_length``
+        (m) on the length changes and ``noise_tension`` (relative) on the tensions, none on the
+        markers; a noisy tension below 0 reads 0 (a sensor of a slack tendon)."""
+        rng = np.random.default_rng(seed)
+        cols = {"time": self.time}
+        for n, T in self.tensions.items():
+            cols[f"tension_{n}"] = np.maximum(T * (1 + noise_tension * rng.standard_normal(T.shape)),
+                                              0.0)
+        for n, y in self.displacements.items():
+            cols[f"displacement_{n}"] = y + noise_length * rng.standard_normal(y.shape)
+        for n, p in self.markers.items():
+            for i, a in enumerate("xyz"):
+                cols[f"marker_{n}_{a}"] = p[:, i]
+        return cols
+
+
+def _is_series(e) -> bool:
+    """``(times, values)``: a pair whose first item is a sequence of times."""
+    return isinstance(e, tuple) and len(e) == 2 and np.ndim(e[0]) == 1
+
+
+def _table(entries: Sequence, width: int, what: str):
+    """Merge per-column schedules into one table: each entry a constant (shape ``width``) or
+    ``(times, values (k, width))``; linear between rows, held after the last."""
+    times = [np.asarray(e[0], float) for e in entries if _is_series(e)]
+    grid = np.unique(np.concatenate([[0.0], *times]))
+    out = []
+    for i, e in enumerate(entries):
+        if _is_series(e):
+            t, v = np.asarray(e[0], float), np.asarray(e[1], float).reshape(len(e[0]), width)
+            if t.ndim != 1 or t.size == 0 or np.any(np.diff(t) <= 0) or not np.all(np.isfinite(t)):
+                raise ValueError(f"{what} {i + 1}: the times must be finite and increasing")
+            out.append(np.stack([np.interp(grid, t, v[:, j]) for j in range(width)], axis=1))
+        else:
+            out.append(np.broadcast_to(np.asarray(e, float).reshape(width), (grid.size, width)))
+    return grid, np.stack(out, axis=1) if out else np.zeros((grid.size, 0, width))
+
+
+def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
+             point_forces: Sequence = (), duration: float = 1.0, output_dt: float = 0.01,
+             max_step: float = MAX_STEP, inertia: bool = True, q0=None) -> Simulation:
+    """Forward dynamics from rest at ``q0`` (default the straight rod) at t = 0, gravity and
+    the given loads acting from t = 0, sampled every ``output_dt`` s up to ``duration``.
+
+    ``tensions``: {tendon: N} constant, or {tendon: (times, values)} linear between the rows
+    and held after the last (tendons not named are slack); ``point_forces``: [(X, f)] with f
+    a global force (N) or ``(times, forces (k, 3))``. ``inertia=False`` drops ``M q̈`` and
+    ``C q̇`` (the quasi-static limit with damping; needs ``[rod] damping`` > 0).
+
+    >>> sim = simulate(robot, {"t1": ([0, 1, 2], [0.0, 3.0, 3.0])}, duration=3.0)
+    >>> sim.markers["tip"][-1], sim.readings(noise_length=1e-4, seed=0)["displacement_t1"]
+    """
+    duration = inputs.finite("duration", duration)
+    output_dt = inputs.finite("output_dt", output_dt)
+    max_step = inputs.finite("max_step", max_step)
+    if not (duration > 0 and output_dt > 0 and max_step > 0):
+        raise ValueError("duration, output_dt and max_step must be > 0")
+    if not inertia and robot.rod.damping <= 0:
+        raise ValueError("without inertia the motion needs [rod] damping > 0 (with neither, "
+                         "every instant is the static equilibrium: use solve)")
+    names = robot.tendon_names
+    tensions = dict(tensions or {})
+    for name in tensions:
+        if name not in names:
+            raise ValueError(f"tension {name}: no such tendon (robot has {', '.join(names)})")
+    T_entries = []
+    for name in names:
+        e = tensions.get(name, 0.0)
+        values = np.asarray(e[1] if _is_series(e) else e, float)
+        for v in values.ravel():
+            if error := inputs.tension_error(name, float(v)):
+                raise ValueError(error)
+        T_entries.append(e)
+    T_times, T = _table(T_entries, 1, "tension")
+    X, F_entries = [], []
+    for i, (x, f) in enumerate(point_forces):
+        fixed = np.asarray(f[1], float)[0] if _is_series(f) else f
+        inputs.check_point_forces(robot, [(x, fixed)])
+        if _is_series(f) and not np.all(np.isfinite(np.asarray(f[1], float))):
+            raise ValueError(f"point force {i + 1}: the forces must be finite")
+        X.append(float(x))
+        F_entries.append(f)
+    if not X:  # one zero force at the base: one program with and without point forces
+        X, F_entries = [0.0], [np.zeros(3)]
+    F_times, F = _table(F_entries, 3, "point force")
+    schedule = Schedule(T_times, T[:, :, 0], F_times, F, np.array(X, float),
+                        np.asarray(robot.gravity, float))
+
+    model = model_for(robot)
+    nq = model.nq
+    q = np.zeros(nq) if q0 is None else np.asarray(q0, float).reshape(nq)
+    times = np.arange(1, int(np.floor(duration / output_dt + 1e-9)) + 1) * output_dt
+    n_sub = max(1, int(np.ceil(output_dt / max_step - 1e-9)))
+    start, run = integrator(model.structure, bool(inertia))
+    state = start(q, np.zeros(nq), np.float64(0.0), np.float64(output_dt / n_sub), schedule,
+                  model.values)
+    markers, _, y, fine = shape_outputs(model.structure, model.values, q)
+    first = (q, np.asarray(state.v), markers, y, True, fine)
+    parts = []
+    for k in range(0, times.size, CHUNK):
+        chunk = times[k:k + CHUNK]
+        padded = np.concatenate([chunk, chunk[-1] + output_dt * np.arange(1, CHUNK - chunk.size + 1)])
+        state, out = run(state, padded, np.int64(n_sub), schedule, model.values)
+        parts.append([np.asarray(a)[:chunk.size] for a in out])
+    qs, vs, mk, ys, ok, fine = (np.concatenate([[f], *(p[i] for p in parts)])
+                                for i, f in enumerate(first))
+    t_all = np.concatenate([[0.0], times])
+    T_all = np.stack([np.interp(t_all, T_times, T[:, j, 0]) for j in range(len(names))], 1)
+    return Simulation(
+        t_all, qs, vs, {n: T_all[:, j] for j, n in enumerate(names)},
+        {n: ys[:, j] for j, n in enumerate(names)},
+        {m: mk[:, i] for i, m in enumerate(robot.marker_names)}, ok & fine)
+
