@@ -306,7 +306,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output-dt", type=_positive, default=0.01, metavar="S",
                    help="time between two rows of the log, s (default 0.01)")
     p.add_argument("--max-step", type=_positive, default=2e-3, metavar="S",
-                   help="the longest integration step, s (default 0.002)")
+                   help="the integration step, s (default 0.002; halved where a solve fails); "
+                        "rows between steps are interpolated")
     p.add_argument("--no-inertia", action="store_true",
                    help="leave out inertia (the quasi-static limit with damping; needs "
                         "[rod] damping > 0)")

@@ -164,13 +164,27 @@ def _equations(structure: Structure, values: Values, inertia: bool):
     return residual, rate
 
 
+def _hermite(s0: State, s1: State, t):
+    """q and q̇ at t in [s0.t, s1.t] by the cubic through both states' q and q̇."""
+    dt = jnp.maximum(s1.t - s0.t, 1e-300)
+    th = jnp.clip((t - s0.t) / dt, 0.0, 1.0)
+    h00, h10 = 2 * th**3 - 3 * th**2 + 1, th**3 - 2 * th**2 + th
+    h01, h11 = -2 * th**3 + 3 * th**2, th**3 - th**2
+    d00, d10, d01, d11 = 6 * th**2 - 6 * th, 3 * th**2 - 4 * th + 1, 6 * th - 6 * th**2, \
+        3 * th**2 - 2 * th
+    q = h00 * s0.q + h10 * dt * s0.v + h01 * s1.q + h11 * dt * s1.v
+    v = (d00 * s0.q + d01 * s1.q) / dt + d10 * s0.v + d11 * s1.v
+    return q, v
+
+
 @lru_cache(maxsize=CACHE_SIZE)
 def integrator(structure: Structure, inertia: bool):
     """The compiled programs ``start(q, v, t, schedule, values) -> State`` and
-    ``run(state, times, n_sub, schedule, values) -> (state, samples)``: TR-BDF2 from ``state``
-    through every output time in ``times`` (``n_sub`` steps between two, a step that fails
-    retried in halves) and at each output time q, q̇, the marker positions, the tendon length
-    changes, whether every step converged and whether the strain is admissible.
+    ``run(state, times, h_max, schedule, values) -> (state, samples)``: TR-BDF2 steps of
+    ``h_max`` from ``state`` (a step that fails retried in halves) past every output time in
+    ``times``, and at each output time (cubic Hermite interpolation of q and q̇ between the
+    steps around it, third order) q, q̇, the marker positions, the tendon length changes,
+    whether every step converged and whether the strain is admissible.
 
     Each stage is solved by Newton's method on q with the exact Jacobian, factored once and
     reused over iterations, stages and steps while the residual falls at least tenfold per
@@ -197,7 +211,7 @@ def integrator(structure: Structure, inertia: bool):
 
         return scaled, factor, size, rate
 
-    def run(state, times, n_sub, schedule: Schedule, values: Values):
+    def run(state, times, h_max, schedule: Schedule, values: Values):
         scaled, factor, size, _ = parts(values, schedule)
 
         def merit(r):
@@ -247,7 +261,9 @@ def integrator(structure: Structure, inertia: bool):
                 first = k == 0
                 base_q = jnp.where(first, s.q + kh * qd, _B1 * q1 - _B0 * s.q)
                 base_v = jnp.where(first, s.v + kh * s.a, _B1 * v1 - _B0 * s.v)
-                guess = jnp.where(first, s.q + 2 * kh * qd, q1 + (1 - GAMMA) * h * v1)
+                guess = jnp.where(first, s.q + GAMMA * h * qd
+                                  + (0.5 * (GAMMA * h) ** 2 * s.a if inertia else 0.0),
+                                  q1 + (1 - GAMMA) * h * v1)
                 t = s.t + jnp.where(first, GAMMA, 1.0) * h
                 q, v, a, good, lu = stage(guess, base_q, base_v, kh, t, lu)
                 return (q, v, lu, ok & good), a
@@ -256,37 +272,43 @@ def integrator(structure: Structure, inertia: bool):
                                              jnp.arange(2))
             return State(s.t + h, q, v, a[1], lu), ok
 
-        def advance(s: State, t_end):
-            """From s to t_end in n_sub steps, a failing step retried in halves."""
-            h0 = (t_end - s.t) / n_sub
-
+        def advance(c, t_end):
+            """Steps of ``h_max`` (a failing one retried in halves) until the newest state
+            passes t_end; (the last two states, whether every step converged)."""
             def cond(c):
-                s, h, halvings = c
-                return (s.t < t_end - 1e-9 * h0) & (halvings <= MAX_HALVINGS)
+                s, _, h, halvings = c
+                return (s.t < t_end - 1e-9 * h_max) & (halvings <= MAX_HALVINGS)
 
             def body(c):
-                s, h, halvings = c
-                h = jnp.minimum(h, t_end - s.t)
+                s, prev, h, halvings = c
                 new, good = step(s, h)
                 keep = s._replace(lu=new.lu)
-                s = jax.tree_util.tree_map(lambda a, b: jnp.where(good, a, b), new, keep)
-                h_next = jnp.where(good, jnp.minimum(2 * h, h0), h / 2)
+                pick = lambda a, b: jax.tree_util.tree_map(  # noqa: E731
+                    lambda x, y: jnp.where(good, x, y), a, b)
+                h_next = jnp.where(good, jnp.minimum(2 * h, h_max), h / 2)
                 halvings = jnp.where(good, jnp.maximum(halvings - 1, 0), halvings + 1)
-                return s, h_next, halvings
+                return pick(new, keep), pick(s, prev), h_next, halvings
 
-            s, _, halvings = jax.lax.while_loop(cond, body, (s, h0, jnp.asarray(0)))
+            s, prev = c
+            s, prev, _, halvings = jax.lax.while_loop(cond, body,
+                                                      (s, prev, h_max, jnp.asarray(0)))
             ok = halvings <= MAX_HALVINGS
-            return s._replace(t=jnp.where(ok, t_end, s.t)), ok
+            # a sample that failed: the run goes on from the last state, marked
+            prev = jax.tree_util.tree_map(lambda x, y: jnp.where(ok, x, y), prev, s)
+            s = s._replace(t=jnp.where(ok, s.t, t_end))
+            return (s, prev), ok
 
-        def sample(s: State, t_end):
-            s, ok = advance(s, t_end)
-            grid, mk = poses(values, s.q, points_at(structure, values, values.marker_X))
-            out = (s.q, s.v, positions(mk, values.marker_offsets),
-                   length_changes(structure, values, grid, s.q), ok & jnp.all(jnp.isfinite(s.q)),
-                   admissible(values, s.q))
-            return s, out
+        def sample(c, t_end):
+            (s, prev), ok = advance(c, t_end)
+            q, v = _hermite(prev, s, t_end)
+            grid, mk = poses(values, q, points_at(structure, values, values.marker_X))
+            out = (q, v, positions(mk, values.marker_offsets),
+                   length_changes(structure, values, grid, q), ok & jnp.all(jnp.isfinite(q)),
+                   admissible(values, q))
+            return (s, prev), out
 
-        return jax.lax.scan(sample, state, times)
+        (state, _), out = jax.lax.scan(sample, (state, state), times)
+        return state, out
 
     def start(q, v, t, h, schedule: Schedule, values: Values):
         """The state at ``(q, v)`` at time t with its acceleration (without inertia v is not
