@@ -179,7 +179,7 @@ def _hermite(s0: State, s1: State, t):
 
 @lru_cache(maxsize=CACHE_SIZE)
 def integrator(structure: Structure, inertia: bool):
-    """The compiled programs ``start(q, v, t, schedule, values) -> State`` and
+    """The compiled programs ``start(q, v, t, h, schedule, values) -> State`` and
     ``run(state, times, h_max, schedule, values) -> (state, samples)``: TR-BDF2 steps of
     ``h_max`` from ``state`` (a step that fails retried in halves) past every output time in
     ``times``, and at each output time (cubic Hermite interpolation of q and q̇ between the

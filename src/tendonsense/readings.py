@@ -338,7 +338,8 @@ class AtomicText(io.TextIOWrapper):
 
 
 
-def read_tension_schedule(path: str | Path, robot: Robot) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def read_tension_schedule(path: str | Path,
+                          robot: Robot) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Tensions over time for :func:`~tendonsense.simulation.simulate`: a CSV with ``time``
     (s, increasing) and ``tension_<name>`` for some tendons; {name: (times, tensions)}.
     Every value is checked by the rules of :mod:`tendonsense.inputs`."""

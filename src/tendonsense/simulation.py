@@ -49,8 +49,8 @@ class Simulation:
         rng = np.random.default_rng(seed)
         cols = {"time": self.time}
         for n, T in self.tensions.items():
-            cols[f"tension_{n}"] = np.maximum(T * (1 + noise_tension * rng.standard_normal(T.shape)),
-                                              0.0)
+            noisy = T * (1 + noise_tension * rng.standard_normal(T.shape))
+            cols[f"tension_{n}"] = np.maximum(noisy, 0.0)
         for n, y in self.displacements.items():
             cols[f"displacement_{n}"] = y + noise_length * rng.standard_normal(y.shape)
         for n, p in self.markers.items():
@@ -145,7 +145,8 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     parts = []
     for k in range(0, times.size, CHUNK):
         chunk = times[k:k + CHUNK]
-        padded = np.concatenate([chunk, chunk[-1] + output_dt * np.arange(1, CHUNK - chunk.size + 1)])
+        pad = chunk[-1] + output_dt * np.arange(1, CHUNK - chunk.size + 1)
+        padded = np.concatenate([chunk, pad])
         state, out = run(state, padded, np.float64(max_step), schedule, model.values)
         parts.append([np.asarray(a)[:chunk.size] for a in out])
     qs, vs, mk, ys, ok, fine = (np.concatenate([[f], *(p[i] for p in parts)])
