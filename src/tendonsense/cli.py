@@ -217,6 +217,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tension-noise", type=_positive, default=0.025 / 3, metavar="FRACTION",
                    help="standard deviation of the tension sensors as a fraction of the "
                         "reading (default 0.00833, i.e. 2.5 %% / 3)")
+    p.add_argument("--dynamic", action="store_true",
+                   help="with --readings: estimate over the log's time stamps with the damped "
+                        "model ([rod] damping), right while the robot moves (an extended "
+                        "Kalman filter; the log needs a time column)")
+    p.add_argument("--force-walk", type=_positive, default=None, metavar="N/SQRT(S)",
+                   help="with --dynamic: how fast the unknown forces may change, a random walk "
+                        "per square root of a second (default 0.1): larger follows a change "
+                        "sooner, smaller averages the noise longer")
     p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
     p.add_argument("--view", action="store_true",
                    help="with --readings: show the estimates live in a 3-D view in the browser "
@@ -448,8 +456,15 @@ def _check_simulate(args, robot):
 
 
 def _check_estimate(args, robot, tensions, displacements):
+    if args.force_walk is not None and not args.dynamic:
+        raise UsageError("tendonsense estimate: --force-walk goes with --dynamic")
+    if args.dynamic:
+        if any(getattr(u, "located", False) for u in args.unknown):
+            raise UsageError("tendonsense estimate: --dynamic takes forces at known points "
+                             "(a location range 'A:B' or '?' is estimated quasi-statically)")
     if args.readings is None:
-        for flag, given in (("--view", args.view), ("-o/--estimates", args.estimates)):
+        for flag, given in (("--view", args.view), ("-o/--estimates", args.estimates),
+                            ("--dynamic", args.dynamic)):
             if given:
                 raise UsageError(f"tendonsense estimate: {flag} goes with --readings")
         if not displacements:
@@ -473,6 +488,12 @@ def _check_estimate(args, robot, tensions, displacements):
         from .readings import read_readings
         args.log = read_readings(args.readings, robot)
         inputs.check_unknowns(robot, args.log[0], args.unknown)
+        if args.dynamic and all(s.time is None for s in args.log[1] if not s.error):
+            raise ReadingsError(f"{args.readings}: no time column: estimation in motion "
+                                f"(--dynamic) needs each row's time stamp, s")
+    if args.dynamic and robot.rod.damping <= 0:
+        print(f"tendonsense: {args.robot} has no [rod] damping: --dynamic filters the "
+              f"quasi-static model", file=sys.stderr)
 
 
 def _point_forces(args):
@@ -746,7 +767,7 @@ def _log(args, robot) -> bool:
         writer = csv.writer(out)
         writer.writerow(rd.output_header(robot, len(unknowns), with_shape, where))
         for first, estimates in estimate_chunks(robot, measured, samples, unknowns, forces,
-                                                noise):
+                                                noise, args.dynamic, _walk(args)):
             for s, r in zip(samples[first:], estimates):
                 if r is None:
                     print(f"tendonsense: {args.readings}: row {s.row} skipped: {s.error}",
@@ -773,6 +794,11 @@ def _log(args, robot) -> bool:
             print(f"estimated {len(samples)} samples: {good} converged, {summary['skipped']} "
                   f"skipped; wrote {args.estimates}")
     return good == len(samples)
+
+
+def _walk(args) -> float:
+    from .filtering import WALK
+    return WALK if args.force_walk is None else args.force_walk
 
 
 def _stream(args, robot, noise) -> bool:
@@ -804,7 +830,8 @@ def _stream(args, robot, noise) -> bool:
     try:
         with fh:
             rows, good = stream_readings(robot, lines, sys.stdout, args.unknown, forces,
-                                         noise, source, skipped, on_sample)
+                                         noise, source, skipped, on_sample, args.dynamic,
+                                         _walk(args))
         if not rows:
             raise ReadingsError(f"{source}: no data rows below the header")
         if viewer is not None and args.readings != "-":

@@ -62,6 +62,12 @@ class Program:
         _PROGRAMS.add(self)
 
     def __call__(self, *args):
+        return self.executable(*args)(*args)
+
+    def executable(self, *args):
+        """The executable for arguments of the shapes and dtypes of ``args`` (loaded or
+        compiled now): a hot loop whose arguments keep their shapes calls it directly and
+        skips the signature check of every call (the executable itself refuses others)."""
         signature = _signature(args)
         call = self.loaded.get(signature)
         if call is None:
@@ -70,7 +76,7 @@ class Program:
                 if call is None:
                     call = self._load(signature, args)
                     self.loaded[signature] = call
-        return call(*args)
+        return call
 
     def _load(self, signature: tuple, args):
         """The kept executable for ``signature``, or a new one compiled and kept."""

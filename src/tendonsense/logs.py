@@ -9,6 +9,7 @@ import csv
 from typing import Callable, Iterator, Sequence
 
 from .estimation import Noise, Unknown, problem
+from .filtering import WALK
 from .online import OnlineEstimator
 from .readings import (ReadingsError, Sample, located, output_header, output_row, parse_header,
                        parse_row)
@@ -20,12 +21,20 @@ CHUNK = 100
 
 
 def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sample],
-                    unknowns: Sequence[Unknown], point_forces=(), noise: Noise = Noise()
+                    unknowns: Sequence[Unknown], point_forces=(), noise: Noise = Noise(),
+                    dynamic: bool = False, walk: float = WALK
                     ) -> Iterator[tuple[int, list[SampleEstimate | None]]]:
     """Estimate every good sample of a log in order, each warm-started from the last good one
     (:func:`~tendonsense.tracking.series_chunks`); yields ``(first, estimates)`` as chunks
-    finish, None for a bad sample."""
+    finish, None for a bad sample. ``dynamic``: over the samples' time stamps with the damped
+    model (:class:`~tendonsense.filtering.MotionFilter`)."""
     prob = problem(robot, measured, unknowns, point_forces)
+    if dynamic:
+        online = OnlineEstimator(prob, noise, dynamic=True, walk=walk)
+        for first in range(0, len(samples), CHUNK):
+            yield first, [None if s.error else online.update(s.displacements, s.tensions, s.time)
+                          for s in samples[first:first + CHUNK]]
+        return
     good = [k for k, s in enumerate(samples) if not s.error]
     out: list[SampleEstimate | None] = [None] * len(samples)
     done = 0
@@ -43,12 +52,13 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
 
 def estimate_readings(robot: Robot, measured: Sequence[str], samples: Sequence[Sample],
                       unknowns: Sequence[Unknown], point_forces=(), noise: Noise = Noise(),
-                      progress: Callable[[int, int], None] | None = None
+                      progress: Callable[[int, int], None] | None = None,
+                      dynamic: bool = False, walk: float = WALK
                       ) -> list[SampleEstimate | None]:
     """:func:`estimate_chunks`, collected; ``progress(done, total)`` is called per chunk."""
     out: list[SampleEstimate | None] = []
     for first, estimates in estimate_chunks(robot, measured, samples, unknowns, point_forces,
-                                            noise):
+                                            noise, dynamic, walk):
         out += estimates
         if progress:
             progress(first + len(estimates), len(samples))
@@ -56,42 +66,48 @@ def estimate_readings(robot: Robot, measured: Sequence[str], samples: Sequence[S
 
 
 def online_estimator(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
-                     point_forces=(), noise: Noise = Noise(), rescue_budget=None
-                     ) -> OnlineEstimator:
+                     point_forces=(), noise: Noise = Noise(), rescue_budget=None,
+                     dynamic: bool = False, walk: float = WALK) -> OnlineEstimator:
     """An :class:`OnlineEstimator` whose programs are built (or loaded from the disk cache)
     now, so that its first reading is answered at full speed."""
     online = OnlineEstimator(problem(robot, measured, unknowns, point_forces), noise,
-                             rescue_budget=rescue_budget)
+                             rescue_budget=rescue_budget, dynamic=dynamic, walk=walk)
     online.prepare()
     return online
 
 
 def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point_forces=(),
                     noise: Noise = Noise(), source="<stdin>", on_skip=None,
-                    on_sample=None) -> tuple[int, int]:
+                    on_sample=None, dynamic: bool = False, walk: float = WALK
+                    ) -> tuple[int, int]:
     """Live estimation: read READINGS.csv lines from ``lines`` (an iterable of text lines) and
     write each output row to ``out`` as soon as it is estimated, flushed; then call
     ``on_sample(sample, estimate or None)`` (e.g. a :class:`~tendonsense.view.Viewer`'s push).
     The estimator's programs are built after the header, before the first row is read.
     Returns (rows, converged). Ends at the end of the input; the caller handles an interrupt
-    (every row written so far is complete)."""
+    (every row written so far is complete). ``dynamic``: with the damped model over the rows'
+    time stamps (the log needs a ``time`` column)."""
     reader = csv.reader(lines)
     try:
         header = next(reader)
     except StopIteration:
         raise ReadingsError(f"{source}: no header row") from None
     columns = parse_header(header, robot, source)
+    if dynamic and "time" not in columns.header:
+        raise ReadingsError(f"{source}: no time column: estimation in motion (--dynamic) "
+                            f"needs each row's time stamp, s")
     writer = csv.writer(out)
     with_shape = bool(columns.markers)
     writer.writerow(output_header(robot, len(unknowns), with_shape, located(unknowns)))
     out.flush()
-    online = online_estimator(robot, columns.measured, unknowns, point_forces, noise)
+    online = online_estimator(robot, columns.measured, unknowns, point_forces, noise,
+                              dynamic=dynamic, walk=walk)
     rows = good = 0
     for i, raw in enumerate(reader, start=1):
         if not any(c.strip() for c in raw):
             continue
         s = parse_row(i, raw, columns, robot)
-        r = None if s.error else online.update(s.displacements, s.tensions)
+        r = None if s.error else online.update(s.displacements, s.tensions, s.time)
         if r is None and on_skip:
             on_skip(s)
         writer.writerow(output_row(robot, s, r, len(unknowns), with_shape, located(unknowns)))

@@ -4,7 +4,7 @@ of work, warm-started from the last good sample (eq. 17 on the fast path of
 
 from __future__ import annotations
 
-import time
+from time import perf_counter as _clock
 from typing import Mapping
 
 import jax
@@ -12,6 +12,7 @@ import numpy as np
 
 from .estimation import estimate_problem
 from .fastpath import Track, stepper, unpack_row
+from .filtering import WALK, MotionFilter
 from .forward import INADMISSIBLE
 from .inputs import Noise
 from .problem import Problem, band
@@ -48,12 +49,17 @@ class OnlineEstimator:
     A force of unknown location is searched over its range on the first sample, then followed
     sample to sample; a sample that loses it (no convergence, or X outside its range) gets a
     new search when the time left allows one, or after five failures in a row.
+
+    With ``dynamic=True`` each sample needs its ``time`` (s) and is estimated with the damped
+    model (:class:`~tendonsense.filtering.MotionFilter`, ``walk`` its unknowns' random walk per
+    √s): right while the robot moves, at a fixed amount of work per sample.
     """
 
     def __init__(self, prob: Problem, noise: Noise = Noise(), time_limit: float = 0.02,
-                 rescue_budget: int | None = None):
+                 rescue_budget: int | None = None, dynamic: bool = False, walk: float = WALK):
         self.problem, self.noise, self.time_limit = prob, noise, time_limit
         self.rescue_budget = rescue_budget
+        self._filter = MotionFilter(prob, noise, walk) if dynamic else None
         model = prob.model
         self._square = len(prob.measured) == prob.n_z
         self._tcols = tuple(range(model.n_tendons))
@@ -73,18 +79,25 @@ class OnlineEstimator:
         reading of slack tendons at their rest lengths, then forget it: the first real
         reading is answered at full speed."""
         names = self.problem.robot.tendon_names
-        self.update({names[j]: 0.0 for j in self.problem.measured}, dict.fromkeys(names, 0.0))
+        if self._filter is not None:
+            self._filter.prepare()
+        self.update({names[j]: 0.0 for j in self.problem.measured}, dict.fromkeys(names, 0.0),
+                    0.0)
         self.reset()
 
     def reset(self):
         """Forget the last good sample: the next one starts from the straight rod."""
         self._carry, self._x, self._ref, self._failures = None, None, self.problem, 0
+        if self._filter is not None:
+            self._filter.reset()
 
-    def update(self, displacements: Mapping[str, float],
-               tensions: Mapping[str, float]) -> SampleEstimate:
+    def update(self, displacements: Mapping[str, float], tensions: Mapping[str, float],
+               time: float | None = None) -> SampleEstimate:
         """Estimate one sample of readings: tendon length changes (m) and tensions (N) by
-        tendon name."""
-        start = time.perf_counter()
+        tendon name, taken at ``time`` (s; needed with ``dynamic``)."""
+        if self._filter is not None:
+            return self._filter.update(displacements, tensions, time)
+        start = _clock()
         prob = self.problem
         try:
             T, y = prob.readings(displacements, tensions)
@@ -112,7 +125,7 @@ class OnlineEstimator:
         note = (INADMISSIBLE if not row.admissible else outside if row.converged
                 else "did not converge within the work budget")
         self._failures += 1
-        left = self.time_limit - (time.perf_counter() - start)
+        left = self.time_limit - (_clock() - start)
         if prob.located:
             # a search over X when it fits in the time left, or after five failures in a row
             if (self.rescue_budget is None and self._search_cost is not None
@@ -134,11 +147,11 @@ class OnlineEstimator:
         sensitivities): the estimate, or a failed sample."""
         prob = self.problem
         values, unknowns = self._values, self._unknowns
-        t0 = time.perf_counter()
+        t0 = _clock()
         x, converged, evaluations = self._rescue(
             self._ref.drive(T, targets), displacements, tensions, budget)
         if prob.located:
-            self._search_cost = time.perf_counter() - t0
+            self._search_cost = _clock() - t0
         if not converged:
             return self._failed(note, row)
         drive = self._ref.drive(T, targets)
@@ -182,13 +195,13 @@ class OnlineEstimator:
         args = (drive, {}, self._unknowns, self._values)
         best = []
         for _ in range(3):  # the least of three: the first runs may still warm up
-            t0 = time.perf_counter()
+            t0 = _clock()
             if self._square:
                 jax.block_until_ready(self._init(np.asarray(self._carry.x), *args))
-                best.append(time.perf_counter() - t0)
+                best.append(_clock() - t0)
             else:
                 row = self._unpack(self._step(self._carry, *args)[1])
-                best.append((time.perf_counter() - t0) / max(1, row.jacobians))
+                best.append((_clock() - t0) / max(1, row.jacobians))
         return min(best)
 
     def _unpack(self, flat) -> Track:

@@ -1,0 +1,247 @@
+"""Estimation of a rod in motion: an extended Kalman filter on the damped model (SPEC §5).
+
+The quasi-static estimate (eq. 17) takes each sample at rest. A moving Kelvin–Voigt rod lags
+its load, ``D q̇ = B(q) T + F(q, z) − K q`` (:mod:`tendonsense.dynamics` without inertia), and
+the rest assumption then misreads the lag as a force. The filter's state is ``[q; z]`` (shape
+and the unknown magnitudes) with a covariance ``P``; between two time stamps, h apart:
+
+- **predict**: q by one linearly implicit Euler step of the damped model,
+  ``D (q − q₋)/h = B(q) T + F(q, z) − K q`` linearised at q₋, z held; P carried through the
+  step's linearisation, with the unknowns a random walk (``Q_z = w² h``) and the tensions
+  read with noise (``σ_T = noise.tension · T``);
+- **update**: with the measured length changes, ``y(q) = Δl + e``, ``σ_e = noise.length``
+  (Joseph form).
+
+Without damping (``D = 0``) the step is a Newton step towards the equilibrium and, at rest,
+the filter settles on the quasi-static estimate. Inertia is left out: at the speeds of a
+tendon-driven rod it moves the estimate far less than the sensor noise, except in the ringing
+after a sudden change of tension (see the manual's motion page). The first sample is taken at
+rest: its quasi-static estimate starts the filter.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Mapping, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .compiled import Program
+from .estimation import estimate_problem
+from .inputs import Noise
+from .kinematics import poses, positions
+from .model import PointSet, Structure, Values, points_at
+from .problem import Problem, _jacobians_fn
+from .result import SampleEstimate
+from .statics import CACHE_SIZE, Drive, Unknowns, admissible, terms
+from .tendons import length_changes
+
+#: the time the robot is taken to have been at rest before the first sample, s
+REST = 1e6
+
+#: default random walk of the unknown magnitudes, per √s (N/√s for a force)
+WALK = 0.1
+
+#: columns of the iteration Jacobian renewed per step
+COLUMNS = 4
+
+#: failed samples in a row after which the filter starts again from a quasi-static estimate
+RESTART = 5
+
+
+class FilterState(NamedTuple):
+    """Time of the last estimate, its ``x = [q; z]`` and covariance ``P``, the iteration
+    Jacobians ``∂E/∂q`` and ``∂y/∂q`` (a few columns renewed per step, from ``column`` on)."""
+
+    t: jax.Array
+    x: jax.Array
+    P: jax.Array
+    E_q: jax.Array
+    y_q: jax.Array
+    column: jax.Array
+
+
+class Tuning(NamedTuple):
+    """The filter's noise model: the unknowns' random walk (per √s, in their own unit: N for
+    a force), length noise (m), tension noise (relative)."""
+
+    walk: jax.Array
+    length: jax.Array
+    tension: jax.Array
+
+
+@lru_cache(maxsize=CACHE_SIZE)
+def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int) -> Program:
+    """The compiled ``step(state, t, drive, unknowns, values, tuning, markers) -> (state, row)``
+    (``markers``: the markers' :class:`~tendonsense.model.PointSet`, made once): one
+    predict and update at time t with the tensions and measured length changes of ``drive``;
+    ``row`` is ``(z, σ_z, markers, ok)`` (ok: finite, later than the state and in the
+    model's strain range). A sample that is not ok returns the state unchanged.
+
+    The prediction is one linearly implicit Euler step (the implicit Euler equation
+    linearised at the last estimate; no iteration, so that every sample's work is fixed)."""
+    nq = structure.nq
+    sel = np.array(measured, int)
+
+    def step(state: FilterState, t, drive: Drive, unknowns: Unknowns, values: Values,
+             tuning: Tuning, markers: PointSet):
+        K = values.young_modulus * values.stiffness()
+        D = values.damping_matrix()
+        h = t - state.t
+        q0, z = state.x[:nq], state.x[nq:]
+
+        def parts(q, z):  # (E, y) with E = K q − B T − F (eq. 7), and B = −∂E/∂T
+            tm = terms(structure, values, q, z, drive, unknowns, 1.0)
+            return (K @ q - tm.load, tm.y[sel]), tm.B
+
+        # exact ∂E/∂z, and COLUMNS columns of ∂E/∂q, ∂y/∂q in turn (forward mode): every
+        # step's work is the same, and the iteration matrix is never more than nq/COLUMNS
+        # steps old (a W-method: first-order accurate with any iteration matrix, L-stable
+        # with a close one)
+        k = min(COLUMNS, nq)
+        cols = (state.column + jnp.arange(k)) % nq
+        Vq = jnp.concatenate([jnp.eye(nq)[cols], jnp.zeros((n_z, nq))])
+        Vz = jnp.concatenate([jnp.zeros((k, n_z)), jnp.eye(n_z)])
+        (E, _), (dE, dy), B = jax.vmap(
+            lambda vq, vz: jax.jvp(parts, (q0, z), (vq, vz), has_aux=True),
+            out_axes=(None, 0, None))(Vq, Vz)
+        E_q = state.E_q.at[:, cols].set(dE[:k].T)
+        y_q = state.y_q.at[:, cols].set(dy[:k].T)
+        E_z = dE[k:].T
+        # D (q − q₀)/h + E(q₀) + E_q (q − q₀) = 0, and its linearisation in q₀, z and T
+        n_t = B.shape[1]
+        sol = jnp.linalg.solve(D / h + E_q, jnp.concatenate([E[:, None], D / h, -E_z, B], 1))
+        q = q0 - sol[:, 0]
+        Phi_q, Phi_z, Phi_T = sol[:, 1:nq + 1], sol[:, nq + 1:nq + 1 + n_z], sol[:, -n_t:]
+        F = jnp.block([[Phi_q, Phi_z], [jnp.zeros((n_z, nq)), jnp.eye(n_z)]])
+        G = jnp.concatenate([Phi_z, jnp.eye(n_z)])
+        GT = jnp.concatenate([Phi_T, jnp.zeros((n_z, Phi_T.shape[1]))])
+        sT = tuning.tension * jnp.abs(drive.tensions)
+        P = F @ state.P @ F.T + (tuning.walk**2 * h) * (G @ G.T) + (GT * sT**2) @ GT.T
+
+        # update with the measured length changes (Joseph form)
+        grid, = poses(values, q)
+        y = length_changes(structure, values, grid, q)[sel]
+        H = jnp.concatenate([y_q, jnp.zeros((sel.size, n_z))], axis=1)
+        R = tuning.length**2 * jnp.eye(sel.size)
+        gain = jnp.linalg.solve(H @ P @ H.T + R, H @ P).T
+        x = jnp.concatenate([q, z]) + gain @ (drive.targets - y)
+        I_KH = jnp.eye(nq + n_z) - gain @ H
+        P = I_KH @ P @ I_KH.T + gain @ R @ gain.T
+        P = 0.5 * (P + P.T)
+
+        _, mk = poses(values, x[:nq], markers)
+        ok = (jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(P)) & (h > 0)
+              & admissible(values, x[:nq]))
+        new = FilterState(t, x, P, E_q, y_q, (state.column + k) % nq)
+        new = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, state)
+        sigma = jnp.sqrt(jnp.maximum(jnp.diagonal(P)[nq:], 0.0))
+        return new, (x[nq:], sigma, positions(mk, values.marker_offsets), ok)
+
+    return Program(step, "filter_step", (structure, measured, n_z))
+
+
+class MotionFilter:
+    """Estimate shape and load magnitudes of a moving rod sample by sample, from time-stamped
+    readings::
+
+        f = MotionFilter(problem(robot, ["t1"], [PointForceUnknown(0.25, (0, 0, -1))]))
+        for t, y, T in readings:
+            est = f.update({"t1": y}, {"t1": T}, t)
+
+    ``walk`` is how fast the unknowns may change (a random walk, in their unit per √s): larger
+    follows a changing force sooner, smaller averages the noise over longer. The first
+    sample (and the first after ``RESTART`` failures in a row) is taken at rest: its
+    quasi-static estimate starts the filter. A bad reading, a time that does not follow the
+    last, or a step that leaves the model's strain range is answered not converged with the
+    reason in ``note`` and leaves the state as it was."""
+
+    def __init__(self, prob: Problem, noise: Noise = Noise(), walk: float = WALK):
+        if prob.located:
+            raise ValueError("estimation in motion takes forces at known points (a location "
+                             "range ('A:B' or '?') is estimated quasi-statically only)")
+        if not (noise.length > 0 and np.isfinite(noise.length)):
+            raise ValueError(f"estimation in motion needs a length noise > 0 m (the filter "
+                             f"weighs the readings by it), got {noise.length!r}")
+        if not (walk > 0 and np.isfinite(walk)):
+            raise ValueError(f"force walk: must be a number > 0 (per √s), got {walk!r}")
+        self.problem, self.noise, self.walk = prob, noise, walk
+        model = prob.model
+        self._step = filter_step(model.structure, prob.measured, prob.n_z)
+        self._values, self._unknowns = jax.device_put((model.values, prob.unknowns))
+        self._markers = jax.device_put(points_at(model.structure, model.values,
+                                                 model.values.marker_X))
+        self._tuning = Tuning(*(np.float64(v) for v in (walk, noise.length, noise.tension)))
+        self._start = self._tuning._replace(walk=np.float64(0.0))
+        self._call = None  # the step's executable, once loaded
+        self.reset()
+
+    def prepare(self):
+        """Build (or load from the disk cache) the step's program now."""
+        prob = self.problem
+        n = prob.model.nq + prob.n_z
+        drive = prob.drive(np.zeros(prob.model.n_tendons), np.zeros(len(prob.measured)))
+        state = self._at_rest(0.0, np.zeros(n), np.eye(n), drive)
+        self._call = self._step.executable(state, np.float64(1.0), drive, self._unknowns,
+                                           self._values, self._tuning, self._markers)
+
+    def reset(self):
+        """Forget the state: the next sample starts the filter again, at rest."""
+        self._state, self._t, self._failures = None, -np.inf, 0
+
+    def update(self, displacements: Mapping[str, float], tensions: Mapping[str, float],
+               time: float | None) -> SampleEstimate:
+        """Estimate one sample: length changes (m) and tensions (N) by tendon name at
+        ``time`` (s)."""
+        prob = self.problem
+        try:
+            T, y = prob.readings(displacements, tensions)
+        except ValueError as exc:
+            return self._failed(f"bad value: {exc}")
+        if time is None or not np.isfinite(time):
+            return self._failed(f"time: {time!r}: estimation in motion needs a time stamp")
+        drive = prob.drive(T, y[list(prob.measured)])
+        state, tuning = self._state, self._tuning
+        if state is None:
+            start = estimate_problem(prob, displacements, tensions, self.noise)
+            if not start.converged:
+                return self._failed("the first sample's quasi-static estimate did not converge",
+                                    start.extra["x"], start.iterations)
+            n = prob.n_z
+            z = start.extra["x"][prob.model.nq:]
+            P = np.zeros((len(z) + prob.model.nq,) * 2)
+            P[-n:, -n:] = np.diag((10 * start.sigma + 1e-3 * np.abs(z) + 1e-12) ** 2)
+            state, tuning = self._at_rest(time - REST, start.extra["x"], P, drive), self._start
+        elif not time > self._t:
+            return self._failed(f"time {time:g} s does not follow the last estimate's "
+                                f"{self._t:g} s")
+        args = (state, np.float64(time), drive, self._unknowns, self._values, tuning,
+                self._markers)
+        if self._call is None:
+            self._call = self._step.executable(*args)
+        new, row = self._call(*args)
+        z, sigma, markers, ok = jax.device_get(row)
+        if not ok:
+            self._failures += 1
+            if self._failures >= RESTART:
+                self.reset()
+            return self._failed("the step left the model's strain range or did not stay "
+                                "finite")
+        self._state, self._t, self._failures = new, float(time), 0
+        n = prob.n_magnitudes
+        return SampleEstimate(z[:n], sigma[:n], dict(zip(prob.robot.marker_names, markers)),
+                              True, 1, np.asarray(new.x))
+
+    def _at_rest(self, t, x, P, drive) -> FilterState:
+        """A state at ``x`` with covariance ``P`` and the exact Jacobians there."""
+        prob = self.problem
+        nq = prob.model.nq
+        E_q, _, _, y_q = _jacobians_fn(prob.model.structure, prob.measured)(
+            x[:nq], x[nq:], drive.tensions, drive, self._unknowns, self._values)
+        return FilterState(np.float64(t), np.asarray(x, float), P, np.asarray(E_q),
+                           np.asarray(y_q), np.int64(0))
+
+    def _failed(self, note: str, x=None, iterations: int = 0) -> SampleEstimate:
+        return SampleEstimate.failed(self.problem, note, x, iterations)

@@ -1,0 +1,198 @@
+"""Estimation in motion (issue 26): the filter on the damped model, on readings logs of a
+simulated motion (a round trip through an integrator that is not the filter's: TR-BDF2 with
+Hermite output against the filter's linearly implicit Euler), against the quasi-static
+estimate; and the exact identity that without damping, at rest, the filter's fixed point is
+the quasi-static estimate."""
+
+import csv
+import dataclasses
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+from tendonsense.estimation import PointForceUnknown, estimate, problem
+from tendonsense.filtering import MotionFilter
+from tendonsense.forward import solve
+from tendonsense.inputs import Noise
+from tendonsense.online import OnlineEstimator
+from tendonsense.robot import load_robot, robot_to_toml
+from tendonsense.simulation import simulate
+from tendonsense.tracking import estimate_series
+
+DAMPED = ROOT / "examples" / "paper_prototype_damped.toml"
+WEIGHT = 0.065 * 9.81  # the paper's 65 gF, at L/2
+X = 0.125
+RAMP = ([0.0, 0.3, 1.8, 2.3, 3.8, 4.6], [1.9, 1.9, 4.78, 4.78, 1.9, 1.9])
+
+
+def _robot(tau):
+    robot = load_robot(DAMPED)
+    return robot.replace(rod=dataclasses.replace(robot.rod, damping=tau * 1e6 / 3))
+
+
+def _log(robot, force):
+    """t1 pulled and released at about 10 mm/s from the equilibrium at t = 0, 100 Hz."""
+    q0 = solve(robot, {"t1": RAMP[1][0]}, [(X, (0.0, 0.0, -WEIGHT))]).q
+    sim = simulate(robot, {"t1": RAMP}, [(X, force)], duration=RAMP[0][-1], output_dt=0.01,
+                   inertia=False, q0=q0)
+    assert sim.ok
+    return sim
+
+
+def _readings(cols, robot):
+    n = len(cols["time"])
+    return ([{"t1": cols["displacement_t1"][k]} for k in range(n)],
+            [{t: cols[f"tension_{t}"][k] for t in robot.tendon_names} for k in range(n)])
+
+
+def _phases(t):
+    moving = ((t > 0.3) & (t < 1.8)) | ((t > 2.3) & (t < 3.8))
+    return moving, ~moving & (((t > 0.1) & (t < 0.3)) | (t > 4.4))
+
+
+@pytest.fixture(scope="module")
+def slow_rod():
+    """τ = 0.3 s: the quasi-static estimate misreads the lag by tens of percent."""
+    robot = _robot(0.3)
+    return robot, _log(robot, (0.0, 0.0, -WEIGHT))
+
+
+def _filtered(robot, cols, noise=Noise(1e-4, 0.01), **kw):
+    prob = problem(robot, ["t1"], [PointForceUnknown(X, (0, 0, -1))])
+    f = MotionFilter(prob, noise, **kw)
+    disp, ten = _readings(cols, robot)
+    out = [f.update(d, T, t) for d, T, t in zip(disp, ten, cols["time"])]
+    assert all(e.converged for e in out)
+    return np.array([e.magnitudes[0] for e in out]), np.array([e.sigma[0] for e in out])
+
+
+def test_moving_rod_without_noise(slow_rod):
+    """Noise-free readings of a moving rod: the filter's error while moving stays below
+    0.2 % of the weight and below a tenth of the quasi-static estimate's."""
+    robot, sim = slow_rod
+    cols = sim.readings()
+    moving, rest = _phases(sim.time)
+    est, _ = _filtered(robot, cols)
+    disp, ten = _readings(cols, robot)
+    prob = problem(robot, ["t1"], [PointForceUnknown(X, (0, 0, -1))])
+    qs = np.array([e.magnitudes[0] for e in estimate_series(prob, disp, ten)])
+    err, err_qs = np.abs(est - WEIGHT) / WEIGHT, np.abs(qs - WEIGHT) / WEIGHT
+    assert err[moving].mean() <= 2e-3
+    assert err[moving].mean() <= 0.1 * err_qs[moving].mean()
+    assert err_qs[moving].mean() > 0.05  # the lag the filter has to read
+    assert err[rest].max() <= 2e-3
+
+
+def test_moving_rod_with_noise(slow_rod):
+    """0.1 mm and 1 % read-out noise: while moving the filter's error is close to its error
+    at rest and far below the quasi-static estimate's; its 1-σ band covers it."""
+    robot, sim = slow_rod
+    cols = sim.readings(1e-4, 0.01, seed=3)
+    moving, rest = _phases(sim.time)
+    est, sigma = _filtered(robot, cols)
+    disp, ten = _readings(cols, robot)
+    prob = problem(robot, ["t1"], [PointForceUnknown(X, (0, 0, -1))])
+    qs = np.array([e.magnitudes[0] for e in estimate_series(prob, disp, ten,
+                                                            Noise(1e-4, 0.01))])
+    rms = lambda e, m: np.sqrt(np.mean((e[m] - WEIGHT) ** 2))  # noqa: E731
+    assert rms(est, moving) <= 1.2 * max(rms(est, rest), 0.01 * WEIGHT)
+    assert rms(est, moving) <= 0.25 * rms(qs, moving)
+    assert rms(est, rest) <= rms(qs, rest)
+    inside = np.abs(est - WEIGHT) <= 3 * sigma
+    assert inside.mean() > 0.95
+
+
+def test_force_step_followed():
+    """The weight drops by 0.32 N in the middle of a pull (τ = 30 ms, noisy readings): the
+    estimate covers 90 % of the step within 0.2 s."""
+    robot = _robot(0.03)
+    ts = 1.0
+    mag = np.array([WEIGHT, WEIGHT, WEIGHT - 0.32, WEIGHT - 0.32])
+    ft = np.array([0.0, ts, ts + 1e-3, RAMP[0][-1]])
+    sim = _log(robot, (ft, np.stack([0 * mag, 0 * mag, -mag], 1)))
+    est, _ = _filtered(robot, sim.readings(1e-4, 0.01, seed=1))
+    t = sim.time
+    reached = t[(t >= ts) & (est <= WEIGHT - 0.9 * 0.32)]
+    assert reached.size and reached[0] - ts <= 0.2
+    late = t > ts + 0.5
+    assert np.abs(est[late] - (WEIGHT - 0.32)).max() < 0.05 * WEIGHT
+
+
+def test_without_damping_the_fixed_point_is_the_static_estimate():
+    """D = 0, constant readings: the filter settles on the quasi-static estimate (eq. 17)."""
+    robot = load_robot(ROOT / "examples" / "paper_prototype.toml")
+    d, T = {"t1": -0.004}, {"t1": 2.5, "t2": 0.0, "t3": 0.0}
+    static = estimate(robot, d, T, [PointForceUnknown(X, (0, 0, -1))])
+    f = MotionFilter(problem(robot, ["t1"], [PointForceUnknown(X, (0, 0, -1))]))
+    out = [f.update(d, T, 0.01 * k) for k in range(200)]
+    assert out[-1].converged
+    np.testing.assert_allclose(out[-1].magnitudes, static.magnitudes, rtol=1e-8)
+    np.testing.assert_allclose(out[-1].markers["tip"], static.markers["tip"], atol=1e-9)
+
+
+def test_bad_samples_are_marked():
+    robot = _robot(0.03)
+    online = OnlineEstimator(problem(robot, ["t1"], [PointForceUnknown(X, (0, 0, -1))]),
+                             dynamic=True)
+    T = {"t1": 2.0, "t2": 0.0, "t3": 0.0}
+    assert "time" in online.update({"t1": -0.003}, T).note
+    assert online.update({"t1": -0.003}, T, 0.0).converged
+    late = online.update({"t1": -0.003}, T, 0.0)
+    assert not late.converged and "does not follow" in late.note
+    neg = online.update({"t1": -0.003}, {"t1": -2.0}, 0.01)
+    assert not neg.converged and "negative" in neg.note
+    assert online.update({"t1": -0.003}, T, 0.02).converged
+    with pytest.raises(ValueError, match="location"):
+        MotionFilter(problem(robot, ["t1", "t2"], [PointForceUnknown(None, (0, 0, -1))]))
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "tendonsense.cli", *map(str, args)],
+                          capture_output=True, text=True)
+
+
+def test_cli_dynamic(tmp_path, slow_rod):
+    robot, sim = slow_rod
+    toml = tmp_path / "robot.toml"
+    toml.write_text(robot_to_toml(robot))
+    cols = {k: v for k, v in sim.readings(1e-4, 0.01, seed=0).items()
+            if k not in ("displacement_t2", "displacement_t3")}  # t1 alone is measured
+    log = tmp_path / "log.csv"
+    with open(log, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(list(cols))
+        w.writerows(zip(*cols.values()))
+    out = tmp_path / "est.csv"
+    r = _cli("estimate", toml, "--readings", log, "--unknown", f"{X},0,0,-1", "--dynamic",
+             "--tension-noise", "0.01", "-o", out, "--quiet")
+    assert r.returncode == 0, r.stderr
+    static = tmp_path / "static.csv"
+    r = _cli("estimate", toml, "--readings", log, "--unknown", f"{X},0,0,-1", "-o", static,
+             "--quiet")
+    assert r.returncode == 0, r.stderr
+    rows = list(csv.DictReader(open(out)))
+    assert list(rows[0]) == list(next(csv.DictReader(open(static))))
+    est, _ = _filtered(robot, cols)
+    np.testing.assert_allclose([float(r["magnitude_1"]) for r in rows], est, rtol=1e-9)
+
+    # slips: one line, a non-zero exit, no output file
+    notime = tmp_path / "notime.csv"
+    with open(notime, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(list(cols)[1:])
+        w.writerows(list(zip(*cols.values()))[:5])
+    for args, code, words in (
+            (("--readings", notime, "--dynamic"), 1, "no time column"),
+            (("--displacement", "t1=-0.003", "--tension", "t1=2", "--dynamic"), 2,
+             "--dynamic goes with --readings"),
+            (("--readings", log, "--force-walk", "0.1"), 2, "--force-walk goes with"),
+            (("--readings", log, "--dynamic", "--force-walk", "-1"), 2, "positive")):
+        bad = tmp_path / "bad.csv"
+        to = ("-o", bad) if "--readings" in args else ()
+        r = _cli("estimate", toml, "--unknown", f"{X},0,0,-1", *args, *to)
+        assert r.returncode == code, (args, r.stderr)
+        assert words in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert not bad.exists()
