@@ -1,7 +1,7 @@
 """Estimation in motion (issue 26): the filter on the damped model against the quasi-static
 estimate, on readings logs simulated with inertia and damping; update() latency; simulate.
 
-    python benchmarks/motion.py [--seeds 5] [--part accuracy|latency|simulate|all]
+    python benchmarks/motion.py [--seeds 5] [--part accuracy|latency|simulate|inertia|all]
 
 The paper's experiment of Fig. 7 on its prototype: t1 pulled from 1.9 N to 4.78 N and
 released at three speeds (3.0, 4.2 and 12 mm/s of tendon travel, a little faster than the
@@ -9,7 +9,8 @@ paper's 2.5, 3.5 and 10 mm/s) with 1 s holds, a
 65 gF weight at L/2 (the unknown, a force along −z there), logged at 100 Hz; and the same
 weight stepping by −0.32 N in the middle of a pull. Relaxation time τ = 30 ms and 0.3 s;
 read-out noise 0.1 mm and 1 % tension (5 seeds), and none. Errors are relative to the
-weight; "moving" rows are those of the ramps, "rest" rows the last 0.3 s of every hold.
+weight; "moving" rows are those of the ramps, "rest" rows the last 0.3 s of every hold
+(and the whole first hold, which starts at rest).
 Prints a table; timings on the shared 2-core machine vary by about ±20 %.
 """
 
@@ -129,6 +130,29 @@ def accuracy(seeds):
                       f"{np.mean(noisy[:, 2]):.3f} | {step_s} |", flush=True)
 
 
+def inertia():
+    """The filter's error while moving at τ = 30 ms (no noise) on the Fig. 7 log simulated
+    with and without inertia, and the tendon's speed in each ramp."""
+    from tendonsense.forward import solve
+    from tendonsense.simulation import simulate
+    robot = robot_with(0.03)
+    t, T, ramps = schedule()
+    q0 = solve(robot, {"t1": LOW}, [(X, (0.0, 0.0, -WEIGHT))]).q
+    for with_inertia in (False, True):
+        sim = simulate(robot, {"t1": (t, T)}, [(X, (0.0, 0.0, -WEIGHT))], duration=t[-1],
+                       output_dt=DT, q0=q0, inertia=with_inertia)
+        moving = np.zeros(sim.time.shape, bool)
+        for a, b in ramps:
+            moving |= (sim.time > a) & (sim.time < b)
+        err = 100 * np.abs(estimates(robot, sim.readings(), True) - WEIGHT) / WEIGHT
+        y = sim.displacements["t1"]
+        speeds = [abs(np.polyfit(sim.time[m], y[m], 1)[0]) * 1e3 for m in
+                  ((sim.time > a) & (sim.time < b) for a, b in ramps)]
+        print(f"simulated with inertia={with_inertia}: filter's mean abs error while moving "
+              f"{err[moving].mean():.3f} %; t1's speed per ramp "
+              f"{', '.join(f'{v:.1f}' for v in speeds)} mm/s", flush=True)
+
+
 def latency(n):
     from tendonsense import load_robot
     from tendonsense.estimation import problem
@@ -190,12 +214,14 @@ def main(argv=None):
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--samples", type=int, default=10000)
     ap.add_argument("--part", default="all",
-                    choices=("accuracy", "latency", "simulate", "all"))
+                    choices=("accuracy", "latency", "simulate", "inertia", "all"))
     args = ap.parse_args(argv)
     if args.part in ("latency", "all"):
         latency(args.samples)
     if args.part in ("simulate", "all"):
         simulate_time()
+    if args.part in ("inertia", "all"):
+        inertia()
     if args.part in ("accuracy", "all"):
         accuracy(args.seeds)
 

@@ -101,8 +101,8 @@ def test_moving_rod_with_noise(slow_rod):
     assert rms(est, moving) <= 1.2 * max(rms(est, rest), 0.01 * WEIGHT)
     assert rms(est, moving) <= 0.25 * rms(qs, moving)
     assert rms(est, rest) <= rms(qs, rest)
-    inside = np.abs(est - WEIGHT) <= 3 * sigma
-    assert inside.mean() > 0.95
+    within = np.abs(est - WEIGHT) / sigma
+    assert (within <= 3).mean() > 0.95 and 0.5 < (within <= 1).mean() < 0.9
 
 
 def test_force_step_followed():
@@ -145,6 +145,9 @@ def test_bad_samples_are_marked():
     neg = online.update({"t1": -0.003}, {"t1": -2.0}, 0.01)
     assert not neg.converged and "negative" in neg.note
     assert online.update({"t1": -0.003}, T, 0.02).converged
+    for _ in range(5):  # a clock that went back: marked, then the filter starts again
+        assert "does not follow" in online.update({"t1": -0.003}, T, 0.0).note
+    assert online.update({"t1": -0.003}, T, 0.0).converged
     with pytest.raises(ValueError, match="location"):
         MotionFilter(problem(robot, ["t1", "t2"], [PointForceUnknown(None, (0, 0, -1))]))
 
@@ -183,7 +186,7 @@ def test_cli_dynamic(tmp_path, slow_rod):
     with open(notime, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(list(cols)[1:])
-        w.writerows(list(zip(*cols.values()))[:5])
+        w.writerows(row[1:] for row in list(zip(*cols.values()))[:5])
     for args, code, words in (
             (("--readings", notime, "--dynamic"), 1, "no time column"),
             (("--displacement", "t1=-0.003", "--tension", "t1=2", "--dynamic"), 2,
@@ -195,4 +198,4 @@ def test_cli_dynamic(tmp_path, slow_rod):
         r = _cli("estimate", toml, "--unknown", f"{X},0,0,-1", *args, *to)
         assert r.returncode == code, (args, r.stderr)
         assert words in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
-        assert not bad.exists()
+        assert r.stdout == "" and not bad.exists()

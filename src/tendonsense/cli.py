@@ -66,6 +66,20 @@ def _assignment(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(f"{name}: not a number: {value!r}") from None
 
 
+def _direction(text: str):
+    name, sep, value = text.partition("=")
+    if not sep or not name:
+        raise argparse.ArgumentTypeError(f"expected NAME=in|out|stuck, got {text!r}")
+    if value not in inputs.SLIDING:
+        raise argparse.ArgumentTypeError(f"{name}={value!r}: the direction is in, out or stuck")
+    return name, value
+
+
+SLIDING_HELP = ("the direction tendon NAME slides through its guides, which sets the sense of "
+                "its friction: in (pulled in, the tension fades toward the anchor; the "
+                "default), out (paid out, it grows toward the anchor){}; once per tendon")
+
+
 def _numbers(n: int, what: str):
     def parse(text: str):
         parts = text.split(",")
@@ -170,6 +184,8 @@ def build_parser() -> argparse.ArgumentParser:
                    metavar="NAME=N",
                    help="a tendon's tension in newtons (>= 0); once per tendon; tendons not "
                         "named are slack")
+    p.add_argument("--sliding", action="append", default=[], type=_direction,
+                   metavar="NAME=in|out", help=SLIDING_HELP.format(""))
 
     p = command("fk", "shape and tensions from tendon length changes (forward kinematics)",
                 "Compute the rod's shape and the tensions needed for the given tendon length "
@@ -183,6 +199,8 @@ def build_parser() -> argparse.ArgumentParser:
                    metavar="NAME=N",
                    help="the tension (N, >= 0) of a tendon whose length change is not given; "
                         "tendons not named are slack")
+    p.add_argument("--sliding", action="append", default=[], type=_direction,
+                   metavar="NAME=in|out", help=SLIDING_HELP.format(""))
 
     p = command("estimate", "shape and unknown forces from tendon readings (estimation)",
                 "Estimate the rod's shape and the size of unknown loads from measured tendon "
@@ -201,6 +219,10 @@ def build_parser() -> argparse.ArgumentParser:
                    metavar="NAME=N",
                    help="a measured tendon tension in newtons (>= 0); tendons not named are "
                         "slack")
+    p.add_argument("--sliding", action="append", default=[], type=_direction,
+                   metavar="NAME=in|out|stuck",
+                   help=SLIDING_HELP.format(" or stuck (anywhere between: the estimate gives "
+                                            "the range of forces)"))
     p.add_argument("--unknown", action="append", default=[], type=_unknown, required=True,
                    metavar="X,DX,DY,DZ|?,DX,DY,DZ|A:B,DX,DY,DZ|gravity", help=UNKNOWN_HELP)
     p.add_argument("--readings", metavar="READINGS.csv",
@@ -367,11 +389,13 @@ def _join_negative_values(argv: list[str]) -> list[str]:
 
 def _once(pairs, flag: str) -> dict[str, float]:
     """NAME=VALUE flags as a dict; a name given twice is a usage error."""
-    out: dict[str, float] = {}
+    out: dict = {}
     for name, value in pairs:
         if name in out:
             raise UsageError(f"tendonsense: {flag} {name} given twice ({out[name]:g} and "
-                             f"{value:g})")
+                             f"{value:g})" if isinstance(value, float) else
+                             f"tendonsense: {flag} {name} given twice ({out[name]} and "
+                             f"{value})")
         out[name] = value
     return out
 
@@ -393,6 +417,15 @@ def _check(args, robot) -> None:
     :mod:`tendonsense.inputs` (nothing computed, JAX not started)."""
     cmd = args.command
     if cmd in ("solve", "fk", "estimate"):
+        args.sliding = _once(args.sliding, "--sliding")
+        inputs.sliding(robot, args.sliding)
+        stuck = [n for n, d in args.sliding.items() if d == "stuck"]
+        if stuck and cmd != "estimate":
+            raise UsageError(f"tendonsense {cmd}: --sliding {stuck[0]}=stuck: the tension inside "
+                             f"a stuck tendon depends on its history; give in or out "
+                             f"(estimate takes stuck and gives the range of forces)")
+        if args.sliding and getattr(args, "readings", None) is not None:
+            raise UsageError("tendonsense estimate: --sliding goes with a single reading")
         tensions = _once(args.tension, "--tension")
         displacements = _once(getattr(args, "displacement", []), "--displacement")
         inputs.check_point_forces(robot, _point_forces(args))
@@ -488,12 +521,18 @@ def _check_estimate(args, robot, tensions, displacements):
         from .readings import read_readings
         args.log = read_readings(args.readings, robot)
         inputs.check_unknowns(robot, args.log[0], args.unknown)
-        if args.dynamic and all(s.time is None for s in args.log[1] if not s.error):
+        if args.dynamic and not _has_time(args.readings):
             raise ReadingsError(f"{args.readings}: no time column: estimation in motion "
                                 f"(--dynamic) needs each row's time stamp, s")
     if args.dynamic and robot.rod.damping <= 0:
         print(f"tendonsense: {args.robot} has no [rod] damping: --dynamic filters the "
               f"quasi-static model", file=sys.stderr)
+
+
+def _has_time(path) -> bool:
+    """Whether a readings log's header has a ``time`` column."""
+    with open(path, newline="") as fh:
+        return "time" in [c.strip() for c in next(csv.reader(fh), [])]
 
 
 def _point_forces(args):
@@ -704,7 +743,13 @@ def _print_result(result, as_json: bool, title: str, robot, unknowns=()):
             s = result.sigma[i] if result.sigma is not None else None
             u = unknowns[i] if i < len(unknowns) else None
             label = unknown_label(u) if u is not None else f"magnitude {i + 1}"
-            print(f"  {label}: {magnitude_text(u, m, s)}")
+            if "magnitude_range" in result.extra:  # a stuck tendon: the range, not one value
+                low, high = result.extra["magnitude_range"][i]
+                print(f"  {label}: between {magnitude_text(u, low)} and "
+                      f"{magnitude_text(u, high)} (a stuck tendon; "
+                      f"{magnitude_text(u, m)} at the middle of its friction band)")
+            else:
+                print(f"  {label}: {magnitude_text(u, m, s)}")
             X = result.extra.get("locations", [None] * (i + 1))[i]
             if X is not None:
                 sx = result.extra["location_sigma"][i]
@@ -729,16 +774,17 @@ def _single(args, robot) -> bool:
     if args.command == "estimate":
         from .estimation import estimate
         result = estimate(robot, args.displacement, args.tension, args.unknown,
-                          _point_forces(args), Noise(args.length_noise, args.tension_noise))
+                          _point_forces(args), Noise(args.length_noise, args.tension_noise),
+                          sliding=args.sliding)
         title = "estimation"
     elif args.command == "solve":
         from .forward import solve
-        result = solve(robot, args.tension, _point_forces(args))
+        result = solve(robot, args.tension, _point_forces(args), sliding=args.sliding)
         title = "forward statics"
     else:
         from .forward import forward_kinematics
         result = forward_kinematics(robot, args.displacement, args.tension,
-                                    _point_forces(args))
+                                    _point_forces(args), sliding=args.sliding)
         title = "forward kinematics"
     _print_result(result, args.json, title, robot, args.unknown
                   if args.command == "estimate" else ())

@@ -10,6 +10,8 @@ equilibrium as an exact constraint (implicit differentiation, no finite differen
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 from typing import Mapping, Sequence
 
 import jax
@@ -17,7 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .fastpath import tracker
-from .forward import make_result
+from . import inputs
+from .forward import make_result, sliding_values
 from .inputs import GravityUnknown, Noise, PointForceUnknown, Unknown  # noqa: F401 (API)
 from .model import Values
 from .problem import Problem, _jacobians_fn, problem, reduced_jacobians  # noqa: F401 (API)
@@ -97,16 +100,39 @@ def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, 
 
 def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping[str, float],
              unknowns: Sequence[Unknown], point_forces=(), noise: Noise = Noise(),
-             x0=None) -> Result:
+             x0=None, sliding: Mapping[str, str] | None = None) -> Result:
     """Estimate the shape and the magnitudes of ``unknowns`` from measured tendon
     ``displacements`` (m) and ``tensions`` (N), by tendon name (eq. 17).
+
+    ``sliding`` ({tendon: 'in' | 'out' | 'stuck'}, default in) is the direction each tendon
+    slides, which sets the sense of its friction (SPEC §5). A stuck tendon's tension profile
+    is anywhere between the two: the result is the estimate at the middle of that band
+    (no friction in it) with ``extra['magnitude_range']`` ``[[low, high], …]``, the estimates at
+    its ends.
 
     ``x0`` (a previous result's ``extra['x']``) warm-starts the solve. The result carries
     ``magnitudes`` (N for point forces, a scale for gravity), their 1-σ band ``sigma`` for
     the sensor ``noise`` and ``sensitivity``: ∂magnitudes/∂measurement per measurement.
     """
     prob = problem(robot, list(displacements), unknowns, point_forces)
-    return estimate_problem(prob, displacements, tensions, noise, x0)
+    if not sliding:
+        return estimate_problem(prob, displacements, tensions, noise, x0)
+    stuck = [robot.tendon_names.index(n) for n, d in inputs.sliding(robot, sliding).items()
+             if d == "stuck"]
+    values = prob.model.values
+    mid = estimate_problem(prob, displacements, tensions, noise, x0,
+                           sliding_values(robot, values, sliding, stuck=0.0))
+    if not stuck:
+        return mid
+    ends, signs = [], inputs.friction_signs(robot, sliding)
+    for combo in itertools.product((1.0, -1.0), repeat=len(stuck)):  # the band's corners
+        signs[stuck] = combo
+        ends.append(estimate_problem(prob, displacements, tensions, noise, mid.extra["x"],
+                                     values._replace(friction=values.friction * signs)))
+    m = np.array([mid.magnitudes] + [r.magnitudes for r in ends])
+    return dataclasses.replace(
+        mid, converged=mid.converged and all(r.converged for r in ends),
+        extra={**mid.extra, "magnitude_range": np.stack([m.min(0), m.max(0)], axis=1)})
 
 
 def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Noise(),

@@ -12,11 +12,11 @@ and the unknown magnitudes) with a covariance ``P``; between two time stamps, h 
 - **update**: with the measured length changes, ``y(q) = Δl + e``, ``σ_e = noise.length``
   (Joseph form).
 
-Without damping (``D = 0``) the step is a Newton step towards the equilibrium and, at rest,
-the filter settles on the quasi-static estimate. Inertia is left out: at the speeds of a
-tendon-driven rod it moves the estimate far less than the sensor noise, except in the ringing
-after a sudden change of tension (see the manual's motion page). The first sample is taken at
-rest: its quasi-static estimate starts the filter.
+Without damping (``D = 0``) the step is a Newton step towards the equilibrium and, at rest
+with as many measured tendons as unknowns, the filter settles on the quasi-static estimate.
+Inertia is left out: at the speeds of a tendon-driven rod it moves the estimate far less than
+the sensor noise, except in the ringing after a sudden change of tension (see the manual's
+motion page). The first sample is taken at rest: its quasi-static estimate starts the filter.
 """
 
 from __future__ import annotations
@@ -156,7 +156,8 @@ class MotionFilter:
     sample (and the first after ``RESTART`` failures in a row) is taken at rest: its
     quasi-static estimate starts the filter. A bad reading, a time that does not follow the
     last, or a step that leaves the model's strain range is answered not converged with the
-    reason in ``note`` and leaves the state as it was."""
+    reason in ``note`` and leaves the state as it was; ``RESTART`` of the last two in a row
+    (e.g. a clock that was reset) start the filter again at rest."""
 
     def __init__(self, prob: Problem, noise: Noise = Noise(), walk: float = WALK):
         if prob.located:
@@ -200,8 +201,12 @@ class MotionFilter:
             T, y = prob.readings(displacements, tensions)
         except ValueError as exc:
             return self._failed(f"bad value: {exc}")
+        try:
+            time = float(time)
+        except (TypeError, ValueError):
+            time = None
         if time is None or not np.isfinite(time):
-            return self._failed(f"time: {time!r}: estimation in motion needs a time stamp")
+            return self._failed("time: estimation in motion needs a finite time stamp (s)")
         drive = prob.drive(T, y[list(prob.measured)])
         state, tuning = self._state, self._tuning
         if state is None:
@@ -215,8 +220,8 @@ class MotionFilter:
             P[-n:, -n:] = np.diag((10 * start.sigma + 1e-3 * np.abs(z) + 1e-12) ** 2)
             state, tuning = self._at_rest(time - REST, start.extra["x"], P, drive), self._start
         elif not time > self._t:
-            return self._failed(f"time {time:g} s does not follow the last estimate's "
-                                f"{self._t:g} s")
+            return self._lost(f"time {time:g} s does not follow the last estimate's "
+                              f"{self._t:g} s")
         args = (state, np.float64(time), drive, self._unknowns, self._values, tuning,
                 self._markers)
         if self._call is None:
@@ -224,11 +229,7 @@ class MotionFilter:
         new, row = self._call(*args)
         z, sigma, markers, ok = jax.device_get(row)
         if not ok:
-            self._failures += 1
-            if self._failures >= RESTART:
-                self.reset()
-            return self._failed("the step left the model's strain range or did not stay "
-                                "finite")
+            return self._lost("the step left the model's strain range or did not stay finite")
         self._state, self._t, self._failures = new, float(time), 0
         n = prob.n_magnitudes
         return SampleEstimate(z[:n], sigma[:n], dict(zip(prob.robot.marker_names, markers)),
@@ -242,6 +243,14 @@ class MotionFilter:
             x[:nq], x[nq:], drive.tensions, drive, self._unknowns, self._values)
         return FilterState(np.float64(t), np.asarray(x, float), P, np.asarray(E_q),
                            np.asarray(y_q), np.int64(0))
+
+    def _lost(self, note: str) -> SampleEstimate:
+        """A failed sample after the filter has started: RESTART of them in a row start it
+        again at rest."""
+        self._failures += 1
+        if self._failures >= RESTART:
+            self.reset()
+        return self._failed(note)
 
     def _failed(self, note: str, x=None, iterations: int = 0) -> SampleEstimate:
         return SampleEstimate.failed(self.problem, note, x, iterations)

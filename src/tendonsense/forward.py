@@ -62,22 +62,43 @@ def _statics_drive(robot: Robot, tensions, point_forces) -> Drive:
     return Drive(T, F, X, np.asarray(robot.gravity, float), np.zeros(0))
 
 
+def sliding_values(robot: Robot, values, directions: Mapping[str, str] | None, stuck=None):
+    """``values`` with every tendon's μ signed by its sliding direction
+    (:func:`~tendonsense.inputs.friction_signs`); ``stuck`` is the sign of a stuck tendon's
+    profile, which a single solve needs (a ValueError without it)."""
+    if not directions:
+        return values
+    if stuck is None:
+        for name, d in directions.items():
+            if d == "stuck":
+                raise ValueError(f"sliding {name}=stuck: the tension inside a stuck tendon "
+                                 f"depends on its history, so a solve needs in or out (an "
+                                 f"estimate takes stuck and gives the range of forces)")
+    signs = inputs.friction_signs(robot, directions, 0.0 if stuck is None else stuck)
+    return values._replace(friction=values.friction * signs)
+
+
 def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
-          point_forces: Sequence[PointForce] = (), q0=None) -> Result:
+          point_forces: Sequence[PointForce] = (), q0=None,
+          sliding: Mapping[str, str] | None = None) -> Result:
     """Forward statics: the equilibrium shape under tendon ``tensions`` (N, by tendon name;
-    missing tendons are slack), gravity and known global ``point_forces`` [(X, f), ...]."""
+    missing tendons are slack), gravity and known global ``point_forces`` [(X, f), ...];
+    ``sliding`` ({tendon: 'in' | 'out'}, default in) is the direction each tendon slides,
+    which sets the sense of its friction (SPEC §5)."""
     model = model_for(robot)
     drive = _statics_drive(robot, tensions, point_forces)
-    res = solve_system(model.structure, model.values, (), drive,
-                       Unknowns.none(len(robot.tendons), drive.load_X.shape[0]), q0)
+    res = solve_system(model.structure, sliding_values(robot, model.values, sliding), (),
+                       drive, Unknowns.none(len(robot.tendons), drive.load_X.shape[0]), q0)
     return make_result(model, res.x, np.asarray(drive.tensions), res)
 
 
 def forward_kinematics(robot: Robot, displacements: Mapping[str, float],
                        tensions: Mapping[str, float] | None = None,
-                       point_forces: Sequence[PointForce] = (), q0=None) -> Result:
+                       point_forces: Sequence[PointForce] = (), q0=None,
+                       sliding: Mapping[str, str] | None = None) -> Result:
     """Forward kinematics (eq. 16): the shape and the tensions of the tendons whose length
-    changes ``displacements`` (m) are prescribed; other tendons keep ``tensions`` (default 0)."""
+    changes ``displacements`` (m) are prescribed; other tendons keep ``tensions`` (default 0);
+    ``sliding`` as for :func:`solve`."""
     if not displacements:
         raise ValueError("forward kinematics needs at least one tendon displacement")
     y = inputs.displacements(robot, displacements)
@@ -93,7 +114,8 @@ def forward_kinematics(robot: Robot, displacements: Mapping[str, float],
     select[list(measured), np.arange(n_z)] = 1.0
     unknowns = Unknowns.none(len(robot.tendons), drive.load_X.shape[0], n_z)._replace(
         tensions=select)
-    res = solve_system(model.structure, model.values, measured, drive, unknowns, q0)
+    res = solve_system(model.structure, sliding_values(robot, model.values, sliding), measured,
+                       drive, unknowns, q0)
     z = np.asarray(res.x[model.nq:])
     return make_result(model, res.x, np.asarray(drive.tensions) + select @ z, res)
 

@@ -128,6 +128,34 @@ def reading_error(robot: Robot, T: np.ndarray, y: np.ndarray, measured: Sequence
     return None
 
 
+#: the directions a tendon may slide through its guides (SPEC §5)
+SLIDING = ("in", "out", "stuck")
+
+
+def sliding(robot: Robot, directions: Mapping[str, str] | None) -> dict[str, str]:
+    """Every tendon's sliding direction: ``in`` (pulled in: its tension fades from the actuator
+    toward the anchor, eq. 10, the default), ``out`` (paid out: it grows toward the anchor) or
+    ``stuck`` (anywhere between); a ValueError names an unknown tendon or direction."""
+    out = dict.fromkeys(robot.tendon_names, "in")
+    for name, d in (directions or {}).items():
+        if name not in out:
+            raise ValueError(f"sliding {name}: no such tendon (robot has "
+                             f"{', '.join(robot.tendon_names)})")
+        if d not in SLIDING:
+            raise ValueError(f"sliding {name}={d!r}: must be one of {', '.join(SLIDING)}")
+        out[name] = d
+    return out
+
+
+def friction_signs(robot: Robot, directions: Mapping[str, str] | None,
+                   stuck: float = 0.0) -> np.ndarray:
+    """The factor of every tendon's Capstan exponent μφ for its sliding direction: +1 pulled
+    in (``T_{i+1} = T_i exp(−μφ_i)``), −1 paid out (``T_{i+1} = T_i exp(+μφ_i)``), ``stuck``
+    for a stuck one (a profile inside the band between the two)."""
+    signs = {"in": 1.0, "out": -1.0, "stuck": stuck}
+    return np.array([signs[d] for d in sliding(robot, directions).values()])
+
+
 def check_point_forces(robot: Robot, point_forces: Sequence[PointForce]):
     """Validated ``(X (n,), forces (n, 3))`` of known point forces."""
     Xs, Fs = [], []

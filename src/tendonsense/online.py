@@ -52,7 +52,8 @@ class OnlineEstimator:
 
     With ``dynamic=True`` each sample needs its ``time`` (s) and is estimated with the damped
     model (:class:`~tendonsense.filtering.MotionFilter`, ``walk`` its unknowns' random walk per
-    √s): right while the robot moves, at a fixed amount of work per sample.
+    √s): right while the robot moves, at a fixed amount of work per sample after the first
+    (a static estimate, taken at rest).
     """
 
     def __init__(self, prob: Problem, noise: Noise = Noise(), time_limit: float = 0.02,
@@ -86,7 +87,8 @@ class OnlineEstimator:
         self.reset()
 
     def reset(self):
-        """Forget the last good sample: the next one starts from the straight rod."""
+        """Forget the last good sample: the next one starts from the straight rod (with
+        ``dynamic``: at rest)."""
         self._carry, self._x, self._ref, self._failures = None, None, self.problem, 0
         if self._filter is not None:
             self._filter.reset()
