@@ -20,7 +20,7 @@ import numpy as np
 
 from .fastpath import tracker
 from . import inputs
-from .forward import make_result, sliding_values
+from .forward import make_result
 from .inputs import GravityUnknown, Noise, PointForceUnknown, Unknown  # noqa: F401 (API)
 from .model import Values
 from .problem import Problem, _jacobians_fn, problem, reduced_jacobians  # noqa: F401 (API)
@@ -119,12 +119,12 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
         return estimate_problem(prob, displacements, tensions, noise, x0)
     stuck = [robot.tendon_names.index(n) for n, d in inputs.sliding(robot, sliding).items()
              if d == "stuck"]
-    values = prob.model.values
+    values, signs = prob.model.values, inputs.friction_signs(robot, sliding)  # stuck: 0
     mid = estimate_problem(prob, displacements, tensions, noise, x0,
-                           sliding_values(robot, values, sliding, stuck=0.0))
+                           values._replace(friction=values.friction * signs))
     if not stuck:
         return mid
-    ends, signs = [], inputs.friction_signs(robot, sliding)
+    ends = []
     for combo in itertools.product((1.0, -1.0), repeat=len(stuck)):  # the band's corners
         signs[stuck] = combo
         ends.append(estimate_problem(prob, displacements, tensions, noise, mid.extra["x"],

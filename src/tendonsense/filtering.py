@@ -77,7 +77,7 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int) -> Pr
     """The compiled ``step(state, t, drive, unknowns, values, tuning, markers) -> (state, row)``
     (``markers``: the markers' :class:`~tendonsense.model.PointSet`, made once): one
     predict and update at time t with the tensions and measured length changes of ``drive``;
-    ``row`` is ``(z, σ_z, markers, ok)`` (ok: finite, later than the state and in the
+    ``row`` is ``(x, σ_z, markers, ok)`` (ok: finite, later than the state and in the
     model's strain range). A sample that is not ok returns the state unchanged.
 
     The prediction is one linearly implicit Euler step (the implicit Euler equation
@@ -138,7 +138,7 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int) -> Pr
         new = FilterState(t, x, P, E_q, y_q, (state.column + k) % nq)
         new = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, state)
         sigma = jnp.sqrt(jnp.maximum(jnp.diagonal(P)[nq:], 0.0))
-        return new, (x[nq:], sigma, positions(mk, values.marker_offsets), ok)
+        return new, (x, sigma, positions(mk, values.marker_offsets), ok)
 
     return Program(step, "filter_step", (structure, measured, n_z))
 
@@ -227,13 +227,13 @@ class MotionFilter:
         if self._call is None:
             self._call = self._step.executable(*args)
         new, row = self._call(*args)
-        z, sigma, markers, ok = jax.device_get(row)
+        x, sigma, markers, ok = jax.device_get(row)
         if not ok:
             return self._lost("the step left the model's strain range or did not stay finite")
         self._state, self._t, self._failures = new, float(time), 0
         n = prob.n_magnitudes
-        return SampleEstimate(z[:n], sigma[:n], dict(zip(prob.robot.marker_names, markers)),
-                              True, 1, np.asarray(new.x))
+        return SampleEstimate(x[prob.model.nq:][:n], sigma[:n],
+                              dict(zip(prob.robot.marker_names, markers)), True, 1, x)
 
     def _at_rest(self, t, x, P, drive) -> FilterState:
         """A state at ``x`` with covariance ``P`` and the exact Jacobians there."""

@@ -62,20 +62,18 @@ def _statics_drive(robot: Robot, tensions, point_forces) -> Drive:
     return Drive(T, F, X, np.asarray(robot.gravity, float), np.zeros(0))
 
 
-def sliding_values(robot: Robot, values, directions: Mapping[str, str] | None, stuck=None):
-    """``values`` with every tendon's μ signed by its sliding direction
-    (:func:`~tendonsense.inputs.friction_signs`); ``stuck`` is the sign of a stuck tendon's
-    profile, which a single solve needs (a ValueError without it)."""
+def sliding_values(robot: Robot, values, directions: Mapping[str, str] | None):
+    """``values`` with every tendon's μ signed by its sliding direction, in or out
+    (:func:`~tendonsense.inputs.friction_signs`); a stuck one is a ValueError: a solve needs
+    its profile."""
     if not directions:
         return values
-    if stuck is None:
-        for name, d in directions.items():
-            if d == "stuck":
-                raise ValueError(f"sliding {name}=stuck: the tension inside a stuck tendon "
-                                 f"depends on its history, so a solve needs in or out (an "
-                                 f"estimate takes stuck and gives the range of forces)")
-    signs = inputs.friction_signs(robot, directions, 0.0 if stuck is None else stuck)
-    return values._replace(friction=values.friction * signs)
+    for name, d in directions.items():
+        if d == "stuck":
+            raise ValueError(f"sliding {name}=stuck: the tension inside a stuck tendon "
+                             f"depends on its history, so a solve needs in or out (an "
+                             f"estimate takes stuck and gives the range of forces)")
+    return values._replace(friction=values.friction * inputs.friction_signs(robot, directions))
 
 
 def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
