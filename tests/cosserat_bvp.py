@@ -49,10 +49,15 @@ def rot_to_quat(R):
 
 
 class CosseratBVP:
-    """The robot with tensions ``T`` (per tendon), point loads [(X, f)] and its gravity."""
+    """The robot with tensions ``T`` (per tendon), point loads [(X, f)] and its gravity.
+    ``held`` {tendon index: tensions of its segments between disks (N)}: those tendons stick
+    and slip disk by disk — a segment keeps its tension unless the ratio across its disk would
+    leave the Capstan band ``[exp(−μφ), exp(+μφ)]``, where it slides to the band's edge
+    (:meth:`segment_tensions` gives the next step's ``held``)."""
 
-    def __init__(self, robot, tensions, point_forces=(), shear: bool = True):
+    def __init__(self, robot, tensions, point_forces=(), shear: bool = True, held=None):
         self.robot = robot
+        self.held = held or {}
         self.shear = shear  # False: shear held rigid (like a GVS basis without shear modes)
         rod = robot.rod
         self.L = rod.length
@@ -136,8 +141,9 @@ class CosseratBVP:
             frames.append((Y[:3], quat_to_rot(Y[3:7, None])[0]))
         return frames
 
-    def point_forces_at_cuts(self, frames, lam):
-        """Global force and moment (about the centre line) applied at every cut."""
+    def point_forces_at_cuts(self, frames, lam, record=None):
+        """Global force and moment (about the centre line) applied at every cut; ``record``
+        (a dict) receives every disk tendon's segment tensions."""
         F = np.zeros((self.nseg + 1, 3))
         M = np.zeros((self.nseg + 1, 3))
         cut_index = {x: i for i, x in enumerate(self.cuts)}
@@ -160,6 +166,11 @@ class CosseratBVP:
                     vR /= np.linalg.norm(vR)
                     phi = np.arccos(np.clip(-vL @ vR, -1.0, 1.0))
                     after = tension * np.exp(-t.friction * phi)
+                    if j in self.held:
+                        after = np.clip(lam * self.held[j][i], after,
+                                        tension * np.exp(t.friction * phi))
+                    if record is not None:
+                        record.setdefault(j, []).append(after)
                 else:
                     vR, after = np.zeros(3), 0.0
                 f = tension * vL + after * vR
@@ -225,6 +236,13 @@ class CosseratBVP:
         first = _angle(tangent[:1], self.R0[:, 0])[0]
         turns = _angle(tangent[1:], tangent[:-1])
         return X, first + np.concatenate([[0.0], np.cumsum(turns)])
+
+    def segment_tensions(self) -> dict[int, np.ndarray]:
+        """The tension of every segment between disks of every tensioned disk tendon (N)."""
+        record = {}
+        self.point_forces_at_cuts(self._frames_at_cuts(
+            *(self.solution.sol(np.array([0.0, 1.0])).T)), 1.0, record)
+        return {j: np.array(v) for j, v in record.items()}
 
     def tendon_points(self, t, X):
         d = t.offset(X, self.L)

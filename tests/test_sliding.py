@@ -108,3 +108,149 @@ def test_cli(tmp_path):
         r = _cli(args[0], PROTOTYPE, *args[1:], "--plot", plot)
         assert r.returncode != 0 and words in r.stderr, (args, r.stderr)
         assert len(r.stderr.strip().splitlines()) == 1 and not plot.exists()
+
+
+# --------------------------------------------------------------- logs: the friction history
+
+def test_play_operator_closed_form():
+    """The state follows the play operator on ln T of half-width μφ: pulled in while T rises,
+    stuck after it turns (the state falls by Δln T / μφ), paid out once ln T has fallen by
+    2μφ, stuck again on the way back; ``in``/``out`` given by the log set it; slack resets;
+    a change of shape alone keeps it."""
+    from tendonsense.sliding import FrictionHistory
+    h = FrictionHistory([0.4, 0.4])
+    phi, band = np.array([1.0, 0.5]), 0.4
+    assert np.array_equal(h.step([1.0, 1.0], phi), [1.0, 1.0])
+    assert np.array_equal(h.step([2.0, 1.0], phi), [1.0, 1.0])
+    s = h.step([2.0 * np.exp(-0.5 * band), 1.0])  # φ kept from the last shape
+    np.testing.assert_allclose(s, [0.5, 1.0], rtol=1e-12)
+    np.testing.assert_allclose(h.step([2.0 * np.exp(-2 * band), 1.0]), [-1.0, 1.0])
+    np.testing.assert_allclose(h.step([0.5, 1.0]), [-1.0, 1.0])  # sliding out further
+    back = 0.5 * np.exp(0.25 * band)
+    np.testing.assert_allclose(h.step([back, 1.0]), [-0.75, 1.0], rtol=1e-12)
+    np.testing.assert_allclose(h.step([back, 1.0], given={0: "stuck", 1: "out"}), [-0.75, -1])
+    np.testing.assert_allclose(h.step([back, 1.0], given={0: "in"}), [1.0, -1.0])
+    assert np.array_equal(h.step([0.0, 1.0]), [1.0, -1.0]) and np.isnan(h.s[0])
+    h.step([1.0, 1.0], 2 * phi)  # a new shape at the same tension keeps the state
+    np.testing.assert_allclose(h.step([1.0, 1.0], 0.5 * phi), [1.0, -1.0])
+    np.testing.assert_allclose(h.step([1.0, 1.1]), [1.0, -1.0 + np.log(1.1) / 0.1])
+
+
+def test_turning_is_the_turn_of_the_path(prototype):
+    """φ of a tendon bent one way in one plane (no gravity: the tendon's moment alone; or the
+    straight tapered rod) is the angle between its entry (the first disk's x axis) and its
+    last segment, from the tendon's points."""
+    import jax.numpy as jnp
+    from tendonsense.forward import model_for
+    from tendonsense.kinematics import configuration
+    from tendonsense.tendons import path, turning
+    robot = prototype.replace(gravity=(0.0, 0.0, 0.0))
+    model = model_for(robot)
+    for q in (jnp.asarray(solve(robot, {"t1": 3.0}).q), jnp.zeros(model.nq)):
+        (g, _), _ = configuration(model.values, q)
+        at, r = path(model.values.tendons[0], g)
+        last = np.asarray(r[0, -1] - r[0, -2])
+        entry = np.asarray(at[0, 0, :3, 0])
+        expected = np.arccos(entry @ last / np.linalg.norm(last))
+        phi = np.asarray(turning(model.structure, model.values, q))
+        assert phi[0] == pytest.approx(expected, rel=1e-9)
+    assert phi[0] < 0.05 < float(turning(model.structure, model.values,
+                                         jnp.asarray(solve(robot, {"t1": 3.0}).q))[0])
+
+
+def _history_log(robot, tensions, weight):
+    """Readings of a tip weight under t1's tension history, each solved with the friction
+    state of the play operator at its own shape (iterated to a fixed point): the law the log
+    estimator follows, made independently of it (forward solves)."""
+    from tendonsense.forward import model_for
+    from tendonsense.readings import Sample
+    from tendonsense.sliding import FrictionHistory, turning_program
+    model = model_for(robot)
+    turn = turning_program(model.structure)
+    history, q, rows, states = FrictionHistory(model.values.friction), None, [], []
+    load = [(robot.rod.length, (0.0, 0.0, -weight))]
+    for k, t in enumerate(tensions):
+        before, s_last = history.copy(), None
+        for _ in range(12):
+            history = before.copy()
+            s = history.step([t, 0.0, 0.0], None if q is None else
+                             np.asarray(turn(np.asarray(q)[None], model.values))[0])
+            if s_last is not None and np.max(np.abs(s - s_last)) < 1e-9:
+                break
+            s_last = s
+            signed = robot.replace(tendons=tuple(
+                dataclasses.replace(td, friction=td.friction * sk)
+                for td, sk in zip(robot.tendons, s)))
+            res = solve(signed, {"t1": t}, load, q0=q)
+            assert res.converged
+            q = res.q
+        rows.append(Sample(k + 1, 0.01 * k, {"t1": t, "t2": 0.0, "t3": 0.0},
+                           {"t1": res.displacements["t1"]}, {}))
+        states.append(s[0])
+    return rows, np.array(states)
+
+
+def test_log_follows_the_friction_history(prototype):
+    """Pull, hold, release, pull again under a tip weight: the log estimate recovers the weight
+    where today's pulled-in law misses it by more than 5 %; rows pulled in are today's bit for
+    bit; stuck rows carry a range that holds the weight; a ``sliding_t1`` column of ``in``
+    restores today's law."""
+    from tendonsense.logs import estimate_readings
+    from tendonsense.readings import Sample
+    W = 0.5
+    T = np.concatenate([np.linspace(1.0, 4.0, 8), [4.0, 4.0], np.linspace(4.0, 1.2, 14),
+                        np.linspace(1.2, 3.0, 8)])
+    rows, truth_states = _history_log(prototype, T, W)
+    unknown = [PointForceUnknown(prototype.rod.length, (0, 0, -1))]
+    got = estimate_readings(prototype, ["t1"], rows, unknown)
+    given_in = [Sample(s.row, s.time, s.tensions, s.displacements, {}, sliding={"t1": "in"})
+                for s in rows]
+    today = estimate_readings(prototype, ["t1"], given_in, unknown)
+    assert all(e.converged for e in got + today)
+    error = np.array([e.magnitudes[0] / W - 1 for e in got])
+    error_today = np.array([e.magnitudes[0] / W - 1 for e in today])
+    assert np.abs(error).max() < 1e-3, error
+    assert np.abs(error_today).max() > 0.05
+    np.testing.assert_allclose([e.friction_state[0] for e in got], truth_states, atol=1e-3)
+    pulled = truth_states == 1.0
+    assert pulled.sum() >= 8 and (truth_states < -0.999).any()
+    assert all(np.array_equal(a.magnitudes, b.magnitudes) and np.array_equal(a.x, b.x)
+               for a, b, p in zip(got, today, pulled) if p)
+    stuck = [e for e in got if e.sliding[0] == "stuck"]
+    assert len(stuck) >= 4 and all(abs(e.friction_state[0]) < 1 for e in stuck)
+    assert all(e.magnitude_range[0, 0] <= W <= e.magnitude_range[0, 1] for e in stuck)
+    assert all(len(e.magnitude_range) == 0 for e in got if e.sliding[0] != "stuck")
+    # the live estimator follows the same history sample by sample
+    from tendonsense.estimation import problem
+    from tendonsense.online import OnlineEstimator
+    online = OnlineEstimator(problem(prototype, ["t1"], unknown), rescue_budget=200)
+    live = [online.update(s.displacements, s.tensions, s.time) for s in rows]
+    assert all(e.converged for e in live)
+    assert [e.sliding for e in live] == [e.sliding for e in got]
+    np.testing.assert_allclose([e.magnitudes[0] for e in live], W, rtol=1e-3)
+    np.testing.assert_allclose([e.friction_state[0] for e in live], truth_states, atol=1e-3)
+    for a, b in zip(live, got):
+        if a.sliding[0] == "stuck":
+            np.testing.assert_allclose(a.magnitude_range, b.magnitude_range, rtol=1e-6)
+
+
+def test_cli_log_columns(prototype, tmp_path):
+    """A ``sliding_t1`` column sets the direction per row (a bad word skips the row, naming
+    the column); the output names each row's direction and a stuck row's range."""
+    log = tmp_path / "log.csv"
+    y = solve(prototype, {"t1": 2.0}, [(0.25, (0.0, 0.0, -0.2))]).displacements["t1"]
+    log.write_text("time,tension_t1,tension_t2,tension_t3,displacement_t1,sliding_t1\n"
+                   + "".join(f"{0.1 * i},2.0,0,0,{y!r},{d}\n"
+                             for i, d in enumerate(("in", "out", "up", "stuck"))))
+    out = tmp_path / "out.csv"
+    r = _cli("estimate", PROTOTYPE, "--readings", log, "--unknown", "0.25,0,0,-1", "-o", out,
+             "--quiet")
+    assert r.returncode == 3 and "row 3" in r.stderr and "sliding_t1" in r.stderr, r.stderr
+    import csv
+    rows = list(csv.DictReader(open(out)))
+    assert [row["sliding_t1"] for row in rows] == ["in", "out", "", "stuck"]  # stuck at out
+    assert float(rows[0]["magnitude_1"]) == pytest.approx(0.2, rel=1e-6)
+    assert rows[0]["magnitude_low_1"] == "" and rows[2]["converged"] == "false"
+    low, high = float(rows[3]["magnitude_low_1"]), float(rows[3]["magnitude_high_1"])
+    assert low <= float(rows[3]["magnitude_1"]) <= high and low == pytest.approx(0.2, rel=1e-6)
+    assert float(rows[1]["magnitude_1"]) == pytest.approx(high, rel=1e-6) and high > 0.3

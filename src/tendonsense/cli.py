@@ -425,7 +425,9 @@ def _check(args, robot) -> None:
                              f"a stuck tendon depends on its history; give in or out "
                              f"(estimate takes stuck and gives the range of forces)")
         if args.sliding and getattr(args, "readings", None) is not None:
-            raise UsageError("tendonsense estimate: --sliding goes with a single reading")
+            raise UsageError("tendonsense estimate: --sliding goes with a single reading (in "
+                             "a log, a sliding_<tendon> column gives it per row; without it "
+                             "the direction follows each tendon's history)")
         tensions = _once(args.tension, "--tension")
         displacements = _once(getattr(args, "displacement", []), "--displacement")
         inputs.check_point_forces(robot, _point_forces(args))
@@ -804,6 +806,7 @@ def _log(args, robot) -> bool:
     measured, samples = args.log
     forces, unknowns = _point_forces(args), args.unknown
     where = rd.located(unknowns)
+    follow = rd.with_sliding(robot)
     with_shape = any(s.markers for s in samples)
     to_file = args.estimates not in (None, "-")
     out = rd.AtomicText(args.estimates) if to_file else sys.stdout
@@ -811,14 +814,15 @@ def _log(args, robot) -> bool:
     good = 0
     try:
         writer = csv.writer(out)
-        writer.writerow(rd.output_header(robot, len(unknowns), with_shape, where))
+        writer.writerow(rd.output_header(robot, len(unknowns), with_shape, where, follow))
         for first, estimates in estimate_chunks(robot, measured, samples, unknowns, forces,
                                                 noise, args.dynamic, _walk(args)):
             for s, r in zip(samples[first:], estimates):
                 if r is None:
                     print(f"tendonsense: {args.readings}: row {s.row} skipped: {s.error}",
                           file=sys.stderr)
-                writer.writerow(rd.output_row(robot, s, r, len(unknowns), with_shape, where))
+                writer.writerow(rd.output_row(robot, s, r, len(unknowns), with_shape, where,
+                                              follow))
                 good += bool(r is not None and r.converged)
             out.flush()
             prog(first + len(estimates), len(samples))

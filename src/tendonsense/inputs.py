@@ -130,6 +130,13 @@ def reading_error(robot: Robot, T: np.ndarray, y: np.ndarray, measured: Sequence
 
 #: the directions a tendon may slide through its guides (SPEC §5)
 SLIDING = ("in", "out", "stuck")
+#: a friction state this close to ±1 is sliding (in or out), not stuck
+EDGE = 1e-9
+
+
+def direction(state: float) -> str:
+    """``in``, ``out`` or ``stuck`` for a friction state in [−1, 1] (+1 pulled in)."""
+    return "in" if state >= 1 - EDGE else "out" if state <= -1 + EDGE else "stuck"
 
 
 def sliding(robot: Robot, directions: Mapping[str, str] | None) -> dict[str, str]:

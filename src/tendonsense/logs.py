@@ -6,14 +6,21 @@ is read."""
 from __future__ import annotations
 
 import csv
+import itertools
+from dataclasses import replace
 from typing import Callable, Iterator, Sequence
+
+import numpy as np
 
 from .estimation import Noise, Unknown, problem
 from .filtering import WALK
+from .inputs import tendon_vector
 from .online import OnlineEstimator
-from .readings import (ReadingsError, Sample, located, output_header, output_row, parse_header,
-                       parse_row)
+from .readings import (ReadingsError, Sample, located, output_header, output_row,
+                       parse_header, parse_row, with_sliding)
 from .robot import Robot
+from .sliding import (EDGE, FIXED_POINT, STATE_TOL, FrictionHistory, direction,
+                      turning_program)
 from .tracking import SampleEstimate, series_chunks
 
 #: samples per compiled scan of a file log
@@ -38,8 +45,13 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
     good = [k for k, s in enumerate(samples) if not s.error]
     out: list[SampleEstimate | None] = [None] * len(samples)
     done = 0
+    history = FrictionHistory(prob.model.values.friction)
+    follow = history.active and not prob.located
     for first, estimates in series_chunks(prob, [samples[k].displacements for k in good],
                                           [samples[k].tensions for k in good], noise, CHUNK):
+        rows = [samples[k] for k in good[first:first + len(estimates)]]
+        if follow:
+            estimates = _follow_friction(prob, history, rows, estimates, noise)
         for k, e in zip(good[first:first + len(estimates)], estimates):
             out[k] = e
         end = (good[first + len(estimates)] if first + len(estimates) < len(good)
@@ -48,6 +60,63 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
         done = end
     if done < len(samples):
         yield done, out[done:]
+
+
+def _follow_friction(prob, history: FrictionHistory, rows: Sequence[Sample],
+                     estimates: list[SampleEstimate], noise: Noise) -> list[SampleEstimate]:
+    """A chunk estimated pulled in, again where its tendons' friction history
+    (:class:`~tendonsense.sliding.FrictionHistory`, driven by the tensions and the turning of
+    the estimated shapes) says otherwise; a stuck row gets the range of its magnitudes over the
+    friction band (its stuck tendons pulled in and paid out)."""
+    model, robot = prob.model, prob.robot
+    nq, n, names = model.nq, len(rows), robot.tendon_names
+    mu = np.asarray(model.values.friction, float)
+    tensions = [tendon_vector(robot, r.tensions, "tension") for r in rows]
+    given = [{names.index(t): d for t, d in r.sliding.items()} for r in rows]
+
+    def again(js, s):  # the rows js as a series with friction s μ
+        got = []
+        for _, chunk in series_chunks(prob, [rows[j].displacements for j in js],
+                                      [rows[j].tensions for j in js], noise, CHUNK,
+                                      {"friction": s * mu}):
+            got += chunk
+        return got
+
+    out, used = list(estimates), np.ones((n, len(names)))
+    for _ in range(FIXED_POINT):  # the states from the shapes, the shapes from the states
+        h = history.copy()
+        q = np.zeros((CHUNK, nq))
+        q[:n] = [e.x[:nq] if e.converged else np.zeros(nq) for e in out]
+        phi = np.asarray(turning_program(model.structure)(q, model.values))[:n]
+        states = np.array([h.step(tensions[j], phi[j], given[j]) if out[j].converged
+                           else np.where(np.isnan(h.s), 1.0, h.s)  # a failed row: kept
+                           for j in range(n)])
+        redo = [j for j in range(n) if np.any(np.abs(states[j] - used[j]) > STATE_TOL)]
+        if not redo:
+            break
+        for j, e in zip(redo, again(redo, states[redo])):
+            out[j], used[j] = e, states[j]
+    states = used
+    stuck_of = (np.abs(states) < 1 - EDGE) | np.array(
+        [[given[j].get(k) == "stuck" for k in range(len(names))] for j in range(n)])
+    out = [replace(e, friction_state=states[j], sliding=tuple(
+        "stuck" if stuck_of[j, k] else direction(v) for k, v in enumerate(states[j])))
+        for j, e in enumerate(out)]
+    history.__dict__.update(h.__dict__)
+    stuck = [j for j in range(n) if stuck_of[j].any() and out[j].converged]
+    if stuck:
+        columns = np.flatnonzero(stuck_of[stuck].any(axis=0))
+        corners = []
+        for signs in itertools.product((-1.0, 1.0), repeat=len(columns)):
+            s = states[stuck].copy()
+            for c, sign in zip(columns, signs):
+                s[:, c] = np.where(stuck_of[stuck, c], sign, s[:, c])
+            corners.append([e.magnitudes if e.converged else np.full(prob.n_magnitudes, np.nan)
+                            for e in again(stuck, s)])
+        for i, j in enumerate(stuck):
+            m = np.array([c[i] for c in corners] + [out[j].magnitudes])
+            out[j] = replace(out[j], magnitude_range=np.stack([m.min(0), m.max(0)], axis=1))
+    return out
 
 
 def estimate_readings(robot: Robot, measured: Sequence[str], samples: Sequence[Sample],
@@ -98,7 +167,8 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
                             f"needs each row's time stamp, s")
     writer = csv.writer(out)
     with_shape = bool(columns.markers)
-    writer.writerow(output_header(robot, len(unknowns), with_shape, located(unknowns)))
+    follow = with_sliding(robot)
+    writer.writerow(output_header(robot, len(unknowns), with_shape, located(unknowns), follow))
     out.flush()
     online = online_estimator(robot, columns.measured, unknowns, point_forces, noise,
                               dynamic=dynamic, walk=walk)
@@ -107,10 +177,11 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
         if not any(c.strip() for c in raw):
             continue
         s = parse_row(i, raw, columns, robot)
-        r = None if s.error else online.update(s.displacements, s.tensions, s.time)
+        r = None if s.error else online.update(s.displacements, s.tensions, s.time, s.sliding)
         if r is None and on_skip:
             on_skip(s)
-        writer.writerow(output_row(robot, s, r, len(unknowns), with_shape, located(unknowns)))
+        writer.writerow(output_row(robot, s, r, len(unknowns), with_shape, located(unknowns),
+                                   follow))
         out.flush()
         if on_sample is not None:
             on_sample(s, r)

@@ -4,6 +4,8 @@ of work, warm-started from the last good sample (eq. 17 on the fast path of
 
 from __future__ import annotations
 
+import itertools
+from dataclasses import replace
 from time import perf_counter as _clock
 from typing import Mapping
 
@@ -14,9 +16,10 @@ from .estimation import estimate_problem
 from .fastpath import Track, stepper, unpack_row
 from .filtering import WALK, MotionFilter
 from .forward import INADMISSIBLE
-from .inputs import Noise
+from .inputs import Noise, sliding as check_sliding
 from .problem import Problem, band
 from .result import SampleEstimate
+from .sliding import EDGE, FIXED_POINT, STATE_TOL, FrictionHistory, direction, turning_program
 from .statics import solve_system
 
 #: evaluations of the solve from the straight rod that a sample the fast path could not
@@ -50,10 +53,16 @@ class OnlineEstimator:
     sample to sample; a sample that loses it (no convergence, or X outside its range) gets a
     new search when the time left allows one, or after five failures in a row.
 
+    Friction follows each tendon's history (:class:`~tendonsense.sliding.FrictionHistory`,
+    the turning angles of the sample's own estimated shape; forces at known points): a
+    tendon whose tension falls sticks, then is paid out; a stuck sample also gets the range of
+    its magnitudes over the friction band (``magnitude_range``), each end followed from its
+    last estimate like the sample itself. ``update(..., sliding={"t1": "out"})`` overrides it.
+
     With ``dynamic=True`` each sample needs its ``time`` (s) and is estimated with the damped
     model (:class:`~tendonsense.filtering.MotionFilter`, ``walk`` its unknowns' random walk per
     √s): right while the robot moves, at a fixed amount of work per sample after the first
-    (a static estimate, taken at rest).
+    (a static estimate, taken at rest); its tendons are taken as pulled in.
     """
 
     def __init__(self, prob: Problem, noise: Noise = Noise(), time_limit: float = 0.02,
@@ -74,6 +83,10 @@ class OnlineEstimator:
         self._ref = prob  # located forces: the problem at the last estimated X
         self._search_cost = None  # s per search over X, measured
         self._failures = 0  # samples failed in a row
+        history = FrictionHistory(model.values.friction)
+        self._history = history if history.active and not dynamic and not prob.located else None
+        self._turning = turning_program(model.structure)
+        self._corners = {}  # the ends of a stuck tendon's band: signs -> carry
 
     def prepare(self):
         """Build (or load from the disk cache) every program a sample may need, with a
@@ -84,40 +97,119 @@ class OnlineEstimator:
             self._filter.prepare()
         self.update({names[j]: 0.0 for j in self.problem.measured}, dict.fromkeys(names, 0.0),
                     0.0)
+        if self._history is not None:
+            self._turning(np.zeros((1, self.problem.model.nq)), self._values)
         self.reset()
 
     def reset(self):
         """Forget the last good sample: the next one starts from the straight rod (with
         ``dynamic``: at rest)."""
         self._carry, self._x, self._ref, self._failures = None, None, self.problem, 0
+        self._corners = {}
+        if self._history is not None:
+            self._history = FrictionHistory(self._history.mu)
         if self._filter is not None:
             self._filter.reset()
 
     def update(self, displacements: Mapping[str, float], tensions: Mapping[str, float],
-               time: float | None = None) -> SampleEstimate:
+               time: float | None = None, sliding: Mapping[str, str] | None = None
+               ) -> SampleEstimate:
         """Estimate one sample of readings: tendon length changes (m) and tensions (N) by
-        tendon name, taken at ``time`` (s; needed with ``dynamic``)."""
+        tendon name, taken at ``time`` (s; needed with ``dynamic``); ``sliding`` {tendon:
+        in|out|stuck} where the direction is known."""
         if self._filter is not None:
             return self._filter.update(displacements, tensions, time)
         start = _clock()
         prob = self.problem
         try:
             T, y = prob.readings(displacements, tensions)
+            names = prob.robot.tendon_names
+            check_sliding(prob.robot, sliding)
+            given = {names.index(n): d for n, d in (sliding or {}).items()}
         except ValueError as exc:
             return self._failed(f"bad value: {exc}")
+        if self._history is None:
+            return self._sample(start, T, y, displacements, tensions, self._values)
+        nq = prob.model.nq
+        if not self._history.needs_turning(T, given):  # pulled in: the band does not matter
+            est = self._sample(start, T, y, displacements, tensions, self._values)
+            if est.converged:  # a failed sample leaves the history as it was
+                self._history.step(T, None, given)
+            return replace(est, friction_state=np.ones(len(names)), sliding=("in",) * len(names))
+        if self._x is not None:  # the turning of the last shape
+            self._history.phi = np.asarray(self._turning(self._x[None, :nq], self._values))[0]
+        before = self._history.copy()
+        state = self._history.step(T, None, given)
+        for _ in range(FIXED_POINT):  # the state at the sample's own shape
+            est = self._sample(start, T, y, displacements, tensions, self._signed(state))
+            if not est.converged:  # a failed sample leaves the history as it was
+                self._history = before
+                return est
+            h = before.copy()
+            new = h.step(T, np.asarray(self._turning(est.x[None, :nq], self._values))[0], given)
+            self._history = h
+            if np.max(np.abs(new - state)) <= STATE_TOL:
+                break
+            state = new
+        stuck = [k for k in range(len(names)) if abs(state[k]) < 1 - EDGE
+                 or given.get(k) == "stuck"]
+        est = replace(est, friction_state=state, sliding=tuple(
+            "stuck" if k in stuck else direction(v) for k, v in enumerate(state)))
+        if not stuck:
+            self._corners = {}
+            return est
+        return replace(est, magnitude_range=self._band_range(est, state, stuck, T, y))
+
+    def _signed(self, state):
+        """The values with every tendon's friction signed by its state."""
+        if np.all(state == 1.0):
+            return self._values
+        return self._values._replace(friction=jax.device_put(state * self._history.mu))
+
+    def _band_range(self, est, state, stuck, T, y) -> np.ndarray:
+        """(n, 2) the range of the magnitudes over the stuck tendons' band: each end followed
+        from its own last estimate (the first time from the sample's estimate, or a solve from
+        the straight rod with a fixed ``rescue_budget``); NaN until an end is found."""
+        prob = self.problem
+        drive = self._ref.drive(T, y[list(prob.measured)])
+        found = [est.magnitudes]
+        for signs in itertools.product((-1.0, 1.0), repeat=len(stuck)):
+            s = state.copy()
+            s[stuck] = signs
+            values = self._signed(s)
+            carry = self._corners.get(signs)
+            if carry is None and self.rescue_budget:
+                x, ok, _ = self._rescue(drive, None, None, self.rescue_budget, values)
+                carry = self._init(x, drive, {}, self._unknowns, values) if ok else None
+            if carry is None:  # from the sample's own estimate, within the step's budget
+                carry = self._carry
+            carry, row = self._step(carry, drive, {}, self._unknowns, values)
+            row = self._unpack(row)
+            if row.converged:
+                self._corners[signs] = carry
+                found.append(row.x[prob.model.nq:prob.model.nq + prob.n_magnitudes])
+            else:
+                self._corners.pop(signs, None)
+                found.append(np.full(prob.n_magnitudes, np.nan))
+        m = np.array(found)
+        return np.stack([m.min(0), m.max(0)], axis=1)
+
+    def _sample(self, start, T, y, displacements, tensions, values) -> SampleEstimate:
+        """One sample on the fast path with ``values``, rescued if it fails."""
+        prob = self.problem
         targets = y[list(prob.measured)]
         drive = self._ref.drive(T, targets)
         model = prob.model
-        values, unknowns = self._values, self._unknowns
+        unknowns = self._unknowns
         if prob.located and self._x is None:  # no X yet: search its whole range
             return self._after_rescue(T, targets, displacements, tensions, None, 0,
-                                      "no estimate of the location", None)
+                                      "no estimate of the location", None, values)
         if self._carry is None:
             x0 = np.zeros(model.nq + prob.n_z)
             self._carry = self._init(x0, drive, {}, unknowns, values)
             if self._eval_cost is None:
                 self._eval_cost = self._time_jacobian(drive)
-                self._rescue(drive, displacements, tensions, 1)  # load its program now
+                self._rescue(drive, displacements, tensions, 1, values)  # load its program
         carry, row = self._step(self._carry, drive, {}, unknowns, values)
         row = self._unpack(row)
         outside = self._outside(row.x)
@@ -134,24 +226,24 @@ class OnlineEstimator:
                     and left < self._search_cost and self._failures < 5):
                 return self._failed(note, row)
             return self._after_rescue(T, targets, displacements, tensions, self.rescue_budget,
-                                      int(row.iterations), note, row)
+                                      int(row.iterations), note, row, values)
         # evaluations that fit in the time left, less three for the step that follows a rescue
         budget = (None if self._x is None else self.rescue_budget if self.rescue_budget
                   else int(left / max(self._eval_cost, 1e-6)) - 3)
         if budget is not None and budget < 3:
             return self._failed(note, row)
         return self._after_rescue(T, targets, displacements, tensions, budget,
-                                  int(row.iterations), note, row)
+                                  int(row.iterations), note, row, values)
 
     def _after_rescue(self, T, targets, displacements, tensions, budget, iterations, note,
-                      row):
+                      row, values):
         """A rescue solve, then one step of the fast path from it (which also gives the
         sensitivities): the estimate, or a failed sample."""
         prob = self.problem
-        values, unknowns = self._values, self._unknowns
+        unknowns = self._unknowns
         t0 = _clock()
         x, converged, evaluations = self._rescue(
-            self._ref.drive(T, targets), displacements, tensions, budget)
+            self._ref.drive(T, targets), displacements, tensions, budget, values)
         if prob.located:
             self._search_cost = _clock() - t0
         if not converged:
@@ -178,15 +270,16 @@ class OnlineEstimator:
                 return f"location {x_:.4g} m left its range {a:g}:{b:g} m"
         return ""
 
-    def _rescue(self, drive, displacements, tensions, budget):
+    def _rescue(self, drive, displacements, tensions, budget, values):
         """A solve from the straight rod, with load continuation, within ``budget``
         evaluations: (x, converged, evaluations)."""
         prob = self.problem
         if self._square and not prob.located:
-            res = solve_system(prob.model.structure, prob.model.values, prob.measured, drive,
+            res = solve_system(prob.model.structure, values, prob.measured, drive,
                                prob.unknowns, None, budget)
             return res.x, bool(res.converged), int(res.evaluations)
-        r = estimate_problem(prob, displacements, tensions, self.noise, None, budget=budget)
+        r = estimate_problem(prob, displacements, tensions, self.noise, None,
+                             jax.device_get(values), budget=budget)
         if prob.located and r.converged:  # its x is referred to the estimated X
             self._ref = prob.at([v for v in r.extra["locations"] if v is not None])
         return r.extra["x"], r.converged, int(r.iterations)

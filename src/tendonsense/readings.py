@@ -15,7 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .inputs import Unknown, displacement_error, rest_lengths, tension_error
+from .inputs import SLIDING, Unknown, displacement_error, rest_lengths, tension_error
 from .result import SampleEstimate
 from .robot import Robot
 
@@ -36,6 +36,7 @@ class Sample:
     displacements: dict[str, float]
     markers: dict[str, np.ndarray]
     error: str | None = None
+    sliding: dict[str, str] = field(default_factory=dict)  # tendon -> in|out|stuck, if given
 
 
 def read_csv_rows(path: Path, error: type[Exception]) -> list[list[str]]:
@@ -70,6 +71,10 @@ def parse_header(header: Sequence[str], robot: Robot, source) -> Columns:
         kind, _, name = col.partition("_")
         if col == "time":
             continue
+        if kind == "sliding":
+            if name not in tendons:
+                raise ReadingsError(f"{source}: column {col!r}: no tendon {name!r} in the robot")
+            continue
         if kind in ("tension", "displacement"):
             if name not in tendons:
                 raise ReadingsError(f"{source}: column {col!r}: no tendon {name!r} in the robot")
@@ -79,7 +84,8 @@ def parse_header(header: Sequence[str], robot: Robot, source) -> Columns:
             continue
         else:
             raise ReadingsError(f"{source}: column {col!r} is not time, tension_<tendon>, "
-                                f"displacement_<tendon> or marker_<marker>_x/_y/_z")
+                                f"displacement_<tendon>, sliding_<tendon> or "
+                                f"marker_<marker>_x/_y/_z")
     if not measured:
         raise ReadingsError(f"{source}: no displacement_<tendon> column")
     missing = [f"tension_{n}" for n in tendons if f"tension_{n}" not in header]
@@ -97,11 +103,18 @@ def parse_header(header: Sequence[str], robot: Robot, source) -> Columns:
 def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sample:
     """One data row (1-based ``i``); a bad one is returned with ``error`` set."""
     header = columns.header
-    values, error = {}, None
+    values, sliding, error = {}, {}, None
     if len(raw) != len(header):
         error = f"has {len(raw)} fields, the header has {len(header)}"
     else:
         for col, text in zip(header, raw):
+            if col.startswith("sliding_"):
+                sliding[col[8:]] = text.strip().lower()
+                if sliding[col[8:]] not in SLIDING:
+                    error = (f"column {col}: {text.strip()!r} is not "
+                             f"{', '.join(SLIDING[:-1])} or {SLIDING[-1]}")
+                    break
+                continue
             try:
                 v = float(text)
             except ValueError:
@@ -122,7 +135,8 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
         i, values.get("time"),
         {n: values[f"tension_{n}"] for n in robot.tendon_names if f"tension_{n}" in values},
         {n: values[f"displacement_{n}"] for n in columns.measured},
-        {m: np.array([values[f"marker_{m}_{a}"] for a in AXES]) for m in columns.markers})
+        {m: np.array([values[f"marker_{m}_{a}"] for a in AXES]) for m in columns.markers},
+        sliding=sliding)
 
 
 def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sample]]:
@@ -243,21 +257,27 @@ def located(unknowns: Sequence[Unknown]) -> tuple[int, ...]:
 
 
 def output_header(robot: Robot, n_unknowns: int, with_shape: bool,
-                  located: Sequence[int] = ()) -> list[str]:
-    """Columns of OUT.csv (uncertainty included; ``located``: indices of located unknowns)."""
+                  located: Sequence[int] = (), sliding: bool = False) -> list[str]:
+    """Columns of OUT.csv (uncertainty included; ``located``: indices of located unknowns;
+    ``sliding``: each tendon's friction direction and, where one is stuck, the range of the
+    magnitudes)."""
     return (["row", "time"] + [f"magnitude_{i + 1}" for i in range(n_unknowns)]
             + [f"sigma_{i + 1}" for i in range(n_unknowns)]
             + [f"location{s}_{i + 1}" for i in located for s in ("", "_sigma")]
+            + ([f"sliding_{t}" for t in robot.tendon_names]
+               + [f"magnitude_{b}_{i + 1}" for i in range(n_unknowns) for b in ("low", "high")]
+               if sliding else [])
             + [f"marker_{m}_{a}" for m in robot.marker_names for a in AXES] + ["converged"]
             + (["shape_rmse"] if with_shape else []) + ["note"])
 
 
 def output_row(robot: Robot, s: Sample, r: SampleEstimate | None, n_unknowns: int,
-               with_shape: bool, located: Sequence[int] = ()) -> list:
+               with_shape: bool, located: Sequence[int] = (), sliding: bool = False) -> list:
     """One row of OUT.csv for sample ``s`` and its estimate ``r`` (None: skipped)."""
     markers = robot.marker_names
     t = "" if s.time is None else repr(s.time)
-    blank = [""] * (2 * n_unknowns + 2 * len(located) + 3 * len(markers))
+    n_sliding = (len(robot.tendon_names) + 2 * n_unknowns) if sliding else 0
+    blank = [""] * (2 * n_unknowns + 2 * len(located) + n_sliding + 3 * len(markers))
     if r is None:
         return ([s.row, t] + blank + ["false"] + ([""] if with_shape else [])
                 + [f"skipped: {s.error}"])
@@ -268,6 +288,10 @@ def output_row(robot: Robot, s: Sample, r: SampleEstimate | None, n_unknowns: in
           [repr(float(v)) for v in r.sigma]
     row += [repr(float(v)) for k in range(len(located))
             for v in (r.locations[k], r.location_sigma[k])]
+    if sliding:
+        row += list(r.sliding) if r.sliding else ["in"] * len(robot.tendon_names)
+        row += ([repr(float(v)) if np.isfinite(v) else "" for v in r.magnitude_range.ravel()]
+                if len(r.magnitude_range) else [""] * (2 * n_unknowns))
     row += [repr(float(v)) for m in markers for v in r.markers[m]]
     row.append("true")
     if with_shape:
@@ -276,12 +300,19 @@ def output_row(robot: Robot, s: Sample, r: SampleEstimate | None, n_unknowns: in
     return row
 
 
-def output_rows(robot: Robot, samples, results, n_unknowns: int, located: Sequence[int] = ()):
+def output_rows(robot: Robot, samples, results, n_unknowns: int, located: Sequence[int] = (),
+                sliding: bool = False):
     """Header and rows of OUT.csv."""
     with_shape = any(s.markers for s in samples)
-    return (output_header(robot, n_unknowns, with_shape, located),
-            [output_row(robot, s, r, n_unknowns, with_shape, located)
+    return (output_header(robot, n_unknowns, with_shape, located, sliding),
+            [output_row(robot, s, r, n_unknowns, with_shape, located, sliding)
              for s, r in zip(samples, results)])
+
+
+def with_sliding(robot: Robot) -> bool:
+    """Whether OUT.csv has the ``sliding_<tendon>`` and range columns: the robot has friction
+    (a log followed with every tendon pulled in, e.g. ``--dynamic``, says ``in``)."""
+    return any(t.friction > 0 for t in robot.tendons)
 
 
 def shape_rmse(result, measured: dict[str, np.ndarray]) -> float:

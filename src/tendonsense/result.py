@@ -75,6 +75,9 @@ class SampleEstimate:
     note: str = ""  # why a sample is not converged
     locations: np.ndarray = field(default_factory=lambda: np.zeros(0))  # located forces' X, m
     location_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    friction_state: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per tendon, ±1
+    sliding: tuple[str, ...] = ()  # per tendon: in, out or stuck (a log that follows friction)
+    magnitude_range: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # if stuck
 
     @staticmethod
     def failed(prob, note: str, x=None, iterations: int = 0) -> "SampleEstimate":

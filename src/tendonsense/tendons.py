@@ -182,6 +182,30 @@ def unit_wrenches(structure: Structure, values: Values, g, friction):
     return out
 
 
+def turning(structure: Structure, values: Values, q):
+    """The angle φ (rad) every tendon turns through from the actuator to its anchor, shape
+    (n_t,): the sum of its turns at the disks (eq. 10), or the turning of a continuous path;
+    its Capstan band is ``T_anchor / T_actuator ∈ [exp(−μφ), exp(+μφ)]``."""
+    (g, _), _ = configuration(values, q)
+    phi = jnp.zeros(structure.n_tendons)
+    for index, grp in zip(structure.groups, values.tendons):
+        at, r = path(grp, g)
+        u = jnp.diff(r, axis=1)
+        u = u / jnp.linalg.norm(u, axis=2, keepdims=True)
+        v_L = jnp.concatenate([-at[:, :1, :3, 0], -u], axis=1)
+        phi = phi.at[np.array(index)].set(jnp.sum(_angle(-v_L[:, :-1], u), axis=1))
+    if structure.continuous:
+        ct = values.continuous
+        w = ct.A @ q + ct.c
+        rate = _rate(w, ct.dA @ q, ct.Omega @ q)[0]
+        ends = ct.A_ends @ q + ct.c_ends
+        first = jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0]), ends[:, :1, 1].shape)
+        kinks = _unit_angle(jnp.concatenate([first, ends[:, :-1, 1]], 1), ends[:, :, 0])[0]
+        total = jnp.sum(kinks, 1) + jnp.sum(ct.weights * rate, axis=(1, 2))
+        phi = phi.at[np.array(structure.continuous)].set(total)
+    return phi
+
+
 def actuation(structure: Structure, values: Values, q, friction):
     """``B(q)`` of eq. 14, shape (nq, n_t): the generalized force of a unit tension, the
     pull-back of :func:`unit_wrenches` through the grid poses."""

@@ -1,0 +1,91 @@
+"""The friction direction of every tendon over a log of readings: a play operator on the
+logarithm of its tension.
+
+A tendon pulled in has its tension fade toward the anchor, ``T_anchor = T exp(−μφ)`` (eq. 10
+over its turning angle φ, :func:`~tendonsense.tendons.turning`); paid out, it grows,
+``T_anchor = T exp(+μφ)``; in between it sticks and its anchor tension stays where it was:
+``w = ln T_anchor`` follows the play operator ``w ← clip(w, p − μφ, p + μφ)`` of ``p = ln T``
+(the reading). The state ``s = (p − w) / (μφ)`` ∈ [−1, 1] (+1 pulled in, −1 paid out, stuck
+between) signs the Capstan exponent: the model is solved with friction ``s μ``
+(:func:`~tendonsense.inputs.friction_signs` for the three named directions).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Mapping
+
+import jax
+import numpy as np
+
+from .compiled import Program
+from .inputs import EDGE, direction  # noqa: F401 (API)
+from .model import Structure
+from .statics import CACHE_SIZE
+from .tendons import turning
+
+#: passes to settle friction states with the shapes they give, and the tolerance on a state
+FIXED_POINT, STATE_TOL = 10, 1e-4
+
+
+
+@lru_cache(maxsize=CACHE_SIZE)
+def turning_program(structure: Structure) -> Program:
+    """Compiled ``(q (N, nq), values) -> φ (N, n_t)``."""
+    return Program(jax.vmap(lambda q, values: turning(structure, values, q), (0, None)),
+                   "turning", structure)
+
+
+class FrictionHistory:
+    """The friction state of every tendon along a log (module docstring), ``mu`` (n_t,) their
+    friction coefficients. The first reading of a tendon finds it pulled in; a state changes
+    with the tension, ``Δs = Δ ln T / (μφ)`` clipped to [−1, 1], and is kept while the tension
+    is (a change of shape alone neither pulls a tendon in nor pays it out)."""
+
+    def __init__(self, mu):
+        self.mu = np.asarray(mu, float)
+        self.s = np.full(self.mu.shape, np.nan)  # the last state; NaN: slack or no reading
+        self.p = np.zeros(self.mu.shape)  # the last ln T
+        self.phi = np.zeros(self.mu.shape)  # the turning angles of the last shape
+
+    def copy(self) -> "FrictionHistory":
+        h = FrictionHistory(self.mu)
+        h.s, h.p, h.phi = self.s.copy(), self.p.copy(), self.phi.copy()
+        return h
+
+    @property
+    def active(self) -> bool:
+        """Whether any tendon has friction (without, the direction changes nothing)."""
+        return bool(np.any(self.mu > 0))
+
+    def needs_turning(self, tensions, given: Mapping[int, str] | None = None) -> bool:
+        """Whether the next state depends on the turning angles: some tendon's tension falls,
+        or it is not pulled in, or the log says a direction other than in."""
+        T = np.asarray(tensions, float)
+        live = (T > 0) & ~np.isnan(self.s)
+        p = np.log(np.where(live, T, 1.0))
+        return bool(np.any(live & ((self.s < 1) | (p < self.p)))
+                    or any(d != "in" for d in (given or {}).values()))
+
+    def step(self, tensions, phi=None, given: Mapping[int, str] | None = None) -> np.ndarray:
+        """The state (n_t,) for the next reading: ``tensions`` (n_t,), N; ``phi`` (n_t,) the
+        turning angles of its shape (None: the last shape's); ``given`` {tendon index:
+        in|out|stuck} from the log (in and out set the state, stuck keeps the history's)."""
+        T = np.asarray(tensions, float)
+        if phi is not None:
+            self.phi = np.asarray(phi, float)
+        band = self.mu * self.phi
+        live = T > 0
+        p = np.log(np.where(live, T, 1.0))
+        rise = p - self.p
+        with np.errstate(divide="ignore", invalid="ignore"):  # no band: in or out at once
+            change = np.where(band > 0, rise / np.where(band > 0, band, 1.0),
+                              np.sign(rise) * np.inf)
+        s = np.where(np.isnan(self.s), 1.0,
+                     np.clip(self.s + np.nan_to_num(change, nan=0.0), -1.0, 1.0))
+        for k, d in (given or {}).items():
+            if d != "stuck":
+                s[k] = 1.0 if d == "in" else -1.0
+        s = np.where(live, s, 1.0)
+        self.s, self.p = np.where(live, s, np.nan), p
+        return s
