@@ -140,6 +140,30 @@ def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sampl
     return columns.measured, samples
 
 
+def has_time(path: str | Path) -> bool:
+    """Whether a readings log's header has a ``time`` column."""
+    with open(path, newline="") as fh:
+        return "time" in [c.strip() for c in next(csv.reader(fh), [])]
+
+
+def log_outputs(logs: Sequence[str | Path], out_dir: str | Path) -> list[Path]:
+    """The output file of each of many logs: ``out_dir`` / the log's own name. A ValueError
+    if two logs share a name or an output would overwrite a log."""
+    outs = [Path(out_dir) / Path(log).name for log in logs]
+    seen: dict[Path, str | Path] = {}
+    for log, out in zip(logs, outs):
+        if out in seen:
+            raise ValueError(f"{seen[out]} and {log}: two logs of the same name would write "
+                             f"the same output {out}")
+        seen[out] = log
+    inputs = {Path(log).resolve() for log in logs}
+    for log, out in zip(logs, outs):
+        if out.resolve() in inputs:
+            raise ValueError(f"{log}: its output {out} would overwrite a log (choose another "
+                             f"output folder)")
+    return outs
+
+
 DESCRIPTIVE = ("source", "note", "comment", "time", "id", "name")
 
 

@@ -217,7 +217,7 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     from concurrent.futures import ThreadPoolExecutor
     model = model_for(robot)
     structure, base = model.structure, model.values
-    T, X, F, varied = _batch_inputs(robot, base, tensions, point_forces, values)
+    T, X, F, varied = batch_inputs(robot, base, tensions, point_forces, values)
     n, n_t = T.shape
     if n == 0:
         raise ValueError("batch: no samples")
@@ -263,7 +263,7 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
                        {t: y[:, j] for j, t in enumerate(robot.tendon_names)}, conv, its)
 
 
-def _batch_inputs(robot: Robot, base, tensions, point_forces, values):
+def batch_inputs(robot: Robot, base, tensions, point_forces, values):
     """Validated batch arrays: T (N, n_t), X (N, n_p), F (N, n_p, 3) and the varied values."""
     names = robot.tendon_names
     if isinstance(tensions, Mapping):

@@ -1,0 +1,195 @@
+"""Sweeps, Monte Carlo and many logs on Dask (issue 28), on a real LocalCluster of 2 worker
+processes: the same numbers as this process, a bad log named and the rest written, a worker
+killed mid-job, no process left behind."""
+
+import csv
+import json
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from conftest import PROTOTYPE
+from tendonsense import cli
+from tendonsense.distributed import cluster, estimate_logs, solve_batch, task_chunks
+from tendonsense.inputs import PointForceUnknown
+from tendonsense.tracking import solve_batch as solve_here
+
+pytest.importorskip("distributed")
+psutil = pytest.importorskip("psutil")
+
+TIP = [PointForceUnknown(0.25, (0, 0, -1))]
+
+
+@pytest.fixture(scope="module")
+def client():
+    with cluster(2) as c:
+        yield c
+
+
+def _batch(n, seed):
+    rng = np.random.default_rng(seed)
+    return ({"t1": rng.uniform(1.0, 3.0, n), "t3": rng.uniform(0.0, 1.0, n)},
+            {"young_modulus": rng.normal(1e6, 5e4, n), "friction": rng.uniform(0.3, 0.5, n)})
+
+
+def _same(a, b, robot):
+    np.testing.assert_array_equal(a.converged, b.converged)
+    np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-12)
+    for m in robot.marker_names:
+        np.testing.assert_allclose(a.markers[m], b.markers[m], rtol=0, atol=1e-12)
+    for t in robot.tendon_names:
+        np.testing.assert_allclose(a.displacements[t], b.displacements[t], rtol=0, atol=1e-12)
+
+
+def test_a_batch_on_the_cluster_is_the_batch_here(client, prototype):
+    """Chunks on two workers, put back in order: the same numbers as the same chunks solved
+    in this process, and the whole batch solved at once to the solver's tolerance."""
+    T, values = _batch(700, 1)
+    assert [c.size for c in task_chunks(700, 250)] == [234, 233, 233]
+    done = []
+    there = solve_batch(client, prototype, T, values=values, task_size=250,
+                        progress=lambda d, n: done.append((d, n)))
+    here = solve_batch(None, prototype, T, values=values, task_size=250)
+    assert there.converged.all() and done[-1] == (3, 3)
+    _same(there, here, prototype)
+    whole = solve_here(prototype, T, values=values)
+    for m in prototype.marker_names:
+        np.testing.assert_allclose(there.markers[m], whole.markers[m], rtol=0, atol=1e-9)
+    with pytest.raises(ValueError, match="t9: no such tendon"):
+        solve_batch(client, prototype, {"t9": [1.0]})
+
+
+def test_a_worker_killed_mid_job(client, prototype):
+    """A worker process killed by its PID while it solves a chunk: the chunk is run again
+    and the result is the same."""
+    T, values = _batch(1200, 2)
+    pids = client.run(os.getpid)
+    killed = []
+
+    def kill_one(done, total):
+        if killed:
+            return
+        busy = [w for w, keys in client.processing().items() if keys]
+        if busy:
+            os.kill(pids[busy[0]], signal.SIGKILL)
+            killed.append(pids[busy[0]])
+
+    there = solve_batch(client, prototype, T, values=values, task_size=150, progress=kill_one)
+    assert killed and _gone(killed)
+    _same(there, solve_batch(None, prototype, T, values=values, task_size=150), prototype)
+    deadline = time.monotonic() + 60
+    while len(client.scheduler_info()["workers"]) < 2 and time.monotonic() < deadline:
+        time.sleep(0.2)
+
+
+@pytest.fixture(scope="module")
+def logs(prototype, tmp_path_factory):
+    """Three logs of a tip force under t1, and the forces behind them."""
+    folder = tmp_path_factory.mktemp("logs")
+    forces = {}
+    for k in range(3):
+        f = np.linspace(0.1, 0.3, 40) + 0.02 * k
+        T = np.full(f.size, 2.0 + 0.1 * k)
+        out = solve_here(prototype, {"t1": T}, [(0.25, np.stack([0 * f, 0 * f, -f], 1))])
+        rows = [[0.01 * i, T[i], 0.0, 0.0, out.displacements["t1"][i]] for i in range(f.size)]
+        with open(folder / f"run{k}.csv", "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["time", "tension_t1", "tension_t2", "tension_t3", "displacement_t1"])
+            w.writerows(rows)
+        forces[f"run{k}.csv"] = f
+    (folder / "broken.csv").write_text("time,tension_t1,displacement_t9\n0,1,0\n")
+    return folder, forces
+
+
+def test_many_logs_a_bad_one_named_the_others_written(client, prototype, logs, tmp_path):
+    folder, forces = logs
+    paths = sorted(folder.glob("*.csv"))
+    there, here = tmp_path / "there", tmp_path / "here"
+    there.mkdir()
+    here.mkdir()
+    out = estimate_logs(client, prototype, paths, there, TIP)
+    local = estimate_logs(None, prototype, paths, here, TIP)
+    assert [s.log for s in out] == [str(p) for p in paths]
+    bad = [s for s in out if s.error]
+    assert len(bad) == 1 and "broken.csv" in bad[0].error and "displacement_t9" in bad[0].error
+    assert sorted(p.name for p in there.iterdir()) == sorted(forces)  # no temporary files
+    for s, s_here in zip(out, local):
+        assert (s.samples, s.converged, s.skipped, s.error) == (
+            s_here.samples, s_here.converged, s_here.skipped, s_here.error)
+    for name, f in forces.items():
+        assert (there / name).read_text() == (here / name).read_text()
+        rows = list(csv.DictReader(open(there / name)))
+        assert [r["converged"] for r in rows] == ["true"] * f.size
+        np.testing.assert_allclose([float(r["magnitude_1"]) for r in rows], f, rtol=1e-6)
+
+
+def test_many_logs_checked_before_anything_is_sent(prototype, logs, tmp_path):
+    folder, _ = logs
+    paths = sorted(folder.glob("run*.csv"))
+    with pytest.raises(ValueError, match="outside the rod"):
+        estimate_logs(None, prototype, paths, tmp_path, [PointForceUnknown(0.4, (0, 0, -1))])
+    with pytest.raises(ValueError, match="no such folder"):
+        estimate_logs(None, prototype, paths, tmp_path / "missing", TIP)
+    with pytest.raises(ValueError, match="would overwrite a log"):
+        estimate_logs(None, prototype, paths, folder, TIP)
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "run0.csv").write_text("")
+    with pytest.raises(ValueError, match="same output"):
+        estimate_logs(None, prototype, [paths[0], tmp_path / "a" / "run0.csv"], tmp_path, TIP)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a"]
+
+
+def test_the_command_line_on_many_logs(client, logs, tmp_path, capsys):
+    folder, forces = logs
+    out = tmp_path / "out"
+    code = cli.main(["estimate", PROTOTYPE, "--readings", str(folder / "*.csv"), "--unknown",
+                     "0.25,0,0,-1", "-o", f"{out}/", "--scheduler", client.scheduler.address,
+                     "--json", "--quiet"])
+    captured = capsys.readouterr()
+    assert code == 1
+    assert captured.err.strip().splitlines() == [
+        line for line in captured.err.strip().splitlines() if "broken.csv" in line]
+    summary = json.loads(captured.out)
+    assert summary["failed"] == [str(folder / "broken.csv")]
+    assert summary["samples"] == sum(f.size for f in forces.values())
+    assert summary["converged"] == summary["samples"]
+    assert sorted(p.name for p in out.iterdir()) == sorted(forces)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["{logs}/*.csv"], "need -o OUTDIR/"),
+    (["{logs}/*.csv", "-o", "{out}/", "--workers", "0"], "--workers 0"),
+    (["{logs}/*.csv", "-o", "{out}/", "--workers", "2", "--scheduler", "tcp://127.0.0.1:1"],
+     "not both"),
+    (["{out}/nothing/*.csv", "-o", "{out}/"], "no file matches"),
+    (["{logs}/run0.csv", "-o", "{out}/run0.csv", "--workers", "2"], "--workers goes with"),
+])
+def test_the_command_line_checks_before_starting_a_cluster(argv, message, logs, tmp_path,
+                                                           capsys):
+    args = [a.format(logs=logs[0], out=tmp_path) for a in argv]
+    code = cli.main(["estimate", PROTOTYPE, "--unknown", "0.25,0,0,-1", "--quiet",
+                     "--readings", *args])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and message in err[0], err
+    assert list(tmp_path.iterdir()) == []
+
+
+def _gone(pids, wait=10.0) -> bool:
+    """Whether every process ``pids`` has ended (and been reaped) within ``wait`` s."""
+    deadline = time.monotonic() + wait
+    while time.monotonic() < deadline:
+        if not any(psutil.pid_exists(p) for p in pids):
+            return True
+        time.sleep(0.1)
+    return False
+
+
+def test_a_cluster_closes_with_its_processes():
+    with cluster(2) as c:
+        pids = list(c.run(os.getpid).values())
+        assert len(pids) == 2 and all(psutil.pid_exists(p) for p in pids)
+    assert _gone(pids)
+    assert not [p for p in psutil.Process().children(recursive=True) if p.pid in pids]
