@@ -193,3 +193,53 @@ def test_a_cluster_closes_with_its_processes():
         assert len(pids) == 2 and all(psutil.pid_exists(p) for p in pids)
     assert _gone(pids)
     assert not [p for p in psutil.Process().children(recursive=True) if p.pid in pids]
+
+
+def _sets(path, n, seed):
+    rng = np.random.default_rng(seed)
+    E, mu, T = rng.normal(1e6, 5e4, n), rng.uniform(0.2, 0.5, n), rng.uniform(1.0, 3.0, n)
+    f = rng.uniform(0.0, 0.3, n)
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["id", "tension_t1", "young_modulus", "friction_t1", "load_X", "load_fx",
+                    "load_fy", "load_fz"])
+        w.writerows([[f"s{k}", T[k], E[k], mu[k], 0.25, 0, 0, -f[k]] for k in range(n)])
+    return E, mu, T, f
+
+
+@pytest.mark.parametrize("where", ["here", "cluster"])
+def test_a_sweep_writes_one_row_per_set(where, client, prototype, tmp_path, capsys):
+    from tendonsense.forward import solve
+    E, mu, T, f = _sets(tmp_path / "sets.csv", 300, 5)
+    out = tmp_path / "results.csv"
+    extra = ["--scheduler", client.scheduler.address, "--task-size", "120"] \
+        if where == "cluster" else []
+    code = cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", out, "--json", "--quiet",
+                     *extra])
+    assert code == 0 and json.loads(capsys.readouterr().out)["converged"] == 300
+    rows = list(csv.DictReader(open(out)))
+    assert [r["id"] for r in rows] == [f"s{k}" for k in range(300)]
+    values = {"young_modulus": E, "friction": np.stack([mu, 0.4 + 0 * mu, 0.4 + 0 * mu], 1)}
+    T3 = np.stack([T, 0 * T, 0 * T], 1)
+    loads = [(np.full(300, 0.25), np.stack([0 * f, 0 * f, -f], 1))]
+    expected = (solve_batch(None, prototype, T3, loads, values, task_size=120)
+                if where == "cluster" else solve_here(prototype, T3, loads, values))
+    for k, r in enumerate(rows):
+        assert r["converged"] == "true"
+        tip = [float(r[f"marker_tip_{a}"]) for a in "xyz"]
+        np.testing.assert_allclose(tip, expected.markers["tip"][k], rtol=0, atol=1e-12)
+        assert float(r["displacement_t1"]) == pytest.approx(expected.displacements["t1"][k],
+                                                             rel=0, abs=1e-12)
+    k = 17
+    one = solve(prototype.with_parameters(young_modulus=E[k], friction={"t1": mu[k]}),
+                {"t1": T[k]}, [(0.25, (0, 0, -f[k]))])
+    np.testing.assert_allclose([float(rows[k][f"marker_tip_{a}"]) for a in "xyz"],
+                               one.markers["tip"], rtol=0, atol=1e-9)
+
+
+def test_a_bad_parameter_set_is_named_and_nothing_written(tmp_path, capsys):
+    (tmp_path / "sets.csv").write_text("tension_t1,young_modulus\n2.0,1e6\n2.0,-5\n")
+    code = cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", tmp_path / "r.csv"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1 and "set 2" in err[0] and "young_modulus" in err[0]
+    assert not (tmp_path / "r.csv").exists()

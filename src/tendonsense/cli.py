@@ -236,14 +236,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "when every row is done); without it, or with '-', each result row goes "
                         "to standard output as soon as it is estimated; with several logs a "
                         "folder (made if missing), one output per log under the log's name")
-    p.add_argument("--workers", type=int, metavar="N",
-                   help="with several logs: estimate them on a local Dask cluster of N worker "
-                        "processes, a log per task (default: one after another in this "
-                        "process; needs pip install 'tendonsense[distributed]')")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="with several logs: estimate them on the running Dask cluster whose "
-                        "scheduler is at ADDRESS (e.g. tcp://10.0.0.5:8786); the logs and "
-                        "OUTDIR must be reachable by its workers at the same paths")
+    _cluster_options(p, "several logs (a log per task)", "the logs and OUTDIR")
     p.add_argument("--output", dest="estimates", help=argparse.SUPPRESS)
     p.add_argument("--length-noise", type=_positive, default=1e-4, metavar="M",
                    help="standard deviation of the tendon length sensors in metres, for the "
@@ -363,6 +356,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--log", required=True, metavar="LOG.csv",
                    help="the readings log to write (atomically)")
 
+    p = command("sweep", "forward statics over many parameter sets (a design sweep, a Monte "
+                "Carlo), on a Dask cluster if asked",
+                "Solve the forward statics once per row of a parameter-set table (tensions, "
+                "E, ν, ρ, μ and a known load per set; a value not given is the robot file's) "
+                "and write one result row per set: the set's own columns, its markers, its "
+                "tendons' length changes and whether it converged. Every set is solved by "
+                "one compiled program, whatever its numbers.")
+    _robot_argument(p)
+    p.add_argument("sets", metavar="SETS.csv",
+                   help="the parameter sets, one per row: tension_<tendon>, young_modulus, "
+                        "poisson_ratio, density, friction, friction_<tendon>, load_X/_fx/_fy/"
+                        "_fz, and descriptive columns (id, name, note) copied to the results")
+    p.add_argument("-o", "--results", required=True, metavar="RESULTS.csv",
+                   help="the results, one row per set (written atomically)")
+    p.add_argument("--point-force", action="append", default=[], metavar="X,FX,FY,FZ",
+                   type=_numbers(4, "X,FX,FY,FZ"),
+                   help="a known force (N, global) at X m from the base, the same in every "
+                        "set; repeatable")
+    _cluster_options(p, "the sets")
+    p.add_argument("--task-size", type=int, default=1000, metavar="N",
+                   help="with --workers or --scheduler: sets per task (default 1000)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
+
     p = command("experiments", "re-run the paper's experiments (its Tables II to IV)",
                 "Estimate every row of the paper's experiments and compare with the applied "
                 "loads and the paper's own estimates.")
@@ -371,6 +388,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true",
                    help="print the result as one JSON object instead of text")
     return parser
+
+
+def _cluster_options(p, what: str, reach: str = ""):
+    p.add_argument("--workers", type=int, metavar="N",
+                   help=f"run {what} on a local Dask cluster of N worker processes (default: "
+                        f"here, in this process; needs pip install 'tendonsense[distributed]')")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help=f"run {what} on the running Dask cluster whose scheduler is at ADDRESS "
+                        f"(e.g. tcp://10.0.0.5:8786)" + (f"; {reach} must be reachable by its "
+                                                         f"workers at the same paths" if reach
+                                                         else ""))
 
 
 def _view_options(p):
@@ -459,6 +487,14 @@ def _check(args, robot) -> None:
             _writable(args.plot, "--plot")
     elif cmd == "simulate":
         _check_simulate(args, robot)
+    elif cmd == "sweep":
+        from .readings import read_parameter_sets
+        _check_cluster(args)
+        if args.task_size < 1:
+            raise UsageError(f"tendonsense sweep: --task-size {args.task_size}: at least 1")
+        inputs.check_point_forces(robot, _point_forces(args))
+        _writable(args.results, "-o/--results")
+        args.sets_read = read_parameter_sets(args.sets, robot)
     elif cmd == "identify":
         from .readings import read_snapshots
         bad = [p for p in args.param or () if p not in inputs.parameter_names(robot)]
@@ -566,12 +602,7 @@ def _check_logs(args, robot, tensions, displacements):
     """estimate over several logs: the patterns expanded, the output folder and the cluster
     options checked, before any log is read or a cluster started."""
     from .readings import log_outputs
-    if args.workers is not None and args.scheduler is not None:
-        raise UsageError("tendonsense estimate: --workers (a local cluster) or --scheduler (a "
-                         "running one), not both")
-    if args.workers is not None and args.workers < 1:
-        raise UsageError(f"tendonsense estimate: --workers {args.workers}: needs at least one "
-                         f"worker process")
+    _check_cluster(args)
     if displacements or tensions:
         raise UsageError("tendonsense estimate: --readings replaces --displacement/--tension")
     for flag, given in (("--view", args.view), ("--plot", args.plot)):
@@ -601,11 +632,30 @@ def _check_logs(args, robot, tensions, displacements):
                          f"writable")
     log_outputs(logs, out)
     inputs.check_unknowns(robot, robot.tendon_names, args.unknown)
+    args.logs = logs
+
+
+def _check_cluster(args):
+    """--workers and --scheduler: one of them at most, a worker at least, Dask installed."""
+    if args.workers is not None and args.scheduler is not None:
+        raise UsageError(f"tendonsense {args.command}: --workers (a local cluster) or "
+                         f"--scheduler (a running one), not both")
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"tendonsense {args.command}: --workers {args.workers}: needs at "
+                         f"least one worker process")
     if (args.workers is not None or args.scheduler is not None) and \
             importlib.util.find_spec("distributed") is None:
         raise ValueError("--workers and --scheduler run on Dask: pip install "
                          "'tendonsense[distributed]'")
-    args.logs = logs
+
+
+def _on_cluster(args):
+    """A context giving a Dask client (--workers, --scheduler), or None: work here."""
+    from contextlib import nullcontext
+    if args.workers is None and args.scheduler is None:
+        return nullcontext()
+    from .distributed import cluster
+    return cluster(args.workers or 1, args.scheduler)
 
 
 def _point_forces(args):
@@ -920,21 +970,17 @@ def _logs(args, robot) -> int:
     per log in OUTDIR, on a Dask cluster with --workers or --scheduler, else here one after
     another; a log that cannot be used is named on stderr and the others written. Exit
     status 1 if a log failed, 3 if a row did not converge."""
-    from contextlib import nullcontext
-
-    from . import distributed
+    from .distributed import estimate_logs
     out = Path(args.estimates)
     try:
         out.mkdir(exist_ok=True)
     except OSError as exc:
         raise ValueError(f"-o/--estimates {args.estimates}: cannot make the folder "
                          f"({exc.strerror})") from None
-    on_cluster = args.workers is not None or args.scheduler is not None
     prog = _Progress(args, "estimate")
     try:
-        with (distributed.cluster(args.workers or 1, args.scheduler) if on_cluster
-              else nullcontext()) as client:
-            done = distributed.estimate_logs(
+        with _on_cluster(args) as client:
+            done = estimate_logs(
                 client, robot, args.logs, out, args.unknown, _point_forces(args),
                 Noise(args.length_noise, args.tension_noise), args.dynamic, _walk(args), prog)
     finally:
@@ -1201,8 +1247,36 @@ def _simulate(args, robot) -> bool:
     return sim.ok
 
 
+def _sweep(args, robot) -> bool:
+    """Forward statics per parameter set, here (:func:`tendonsense.tracking.solve_batch`) or
+    on a Dask cluster (:func:`tendonsense.distributed.solve_batch`); RESULTS.csv written
+    atomically."""
+    from .readings import sweep_rows, write_csv_atomic
+    sets = args.sets_read
+    forces = _point_forces(args) + sets.loads
+    prog = _Progress(args, "sweep")
+    try:
+        with _on_cluster(args) as client:
+            if client is None:
+                from .tracking import solve_batch
+                out = solve_batch(robot, sets.tensions, forces, sets.values)
+            else:
+                from .distributed import solve_batch
+                out = solve_batch(client, robot, sets.tensions, forces, sets.values,
+                                  args.task_size, prog)
+    finally:
+        prog.close()
+    write_csv_atomic(args.results, *sweep_rows(robot, sets, out))
+    n, good = len(sets.rows), int(out.converged.sum())
+    if args.json:
+        print(json.dumps({"sets": n, "converged": good, "output": str(args.results)}))
+    else:
+        print(f"solved {n} parameter sets: {good} converged; wrote {args.results}")
+    return good == n
+
+
 RUN = {"solve": _single, "fk": _single, "view": _view, "identify": _identify,
-       "experiments": _experiments, "simulate": _simulate}
+       "experiments": _experiments, "simulate": _simulate, "sweep": _sweep}
 
 
 def main(argv=None) -> int:
