@@ -72,10 +72,13 @@ def cluster(workers: int = 2, scheduler: str | None = None,
     if workers < 1:
         raise ValueError(f"a local cluster needs at least one worker, not {workers}")
     folder = cache_dir()
-    local = distributed.LocalCluster(
-        n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-        scheduler_kwargs={"dashboard_address": ":0"}, memory_limit=0,
-        env={"TENDONSENSE_CACHE_DIR": "" if folder is None else str(folder)})
+    try:
+        local = distributed.LocalCluster(
+            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+            scheduler_kwargs={"dashboard_address": ":0"}, memory_limit=0,
+            env={"TENDONSENSE_CACHE_DIR": "" if folder is None else str(folder)})
+    except (RuntimeError, OSError) as exc:
+        raise OSError(f"a local Dask cluster of {workers} workers did not start ({exc})") from None
     try:
         with distributed.Client(local) as client:
             yield client
