@@ -13,7 +13,8 @@ import pytest
 
 from conftest import PROTOTYPE
 from tendonsense import cli
-from tendonsense.distributed import cluster, estimate_logs, solve_batch, task_chunks
+from tendonsense.distributed import (cluster, estimate_batch, estimate_logs, solve_batch,
+                                     task_chunks)
 from tendonsense.inputs import PointForceUnknown
 from tendonsense.tracking import solve_batch as solve_here
 
@@ -60,6 +61,28 @@ def test_a_batch_on_the_cluster_is_the_batch_here(client, prototype):
         np.testing.assert_allclose(there.markers[m], whole.markers[m], rtol=0, atol=1e-9)
     with pytest.raises(ValueError, match="t9: no such tendon"):
         solve_batch(client, prototype, {"t9": [1.0]})
+
+
+def test_readings_estimated_on_the_cluster_as_here(client, prototype):
+    """Independent readings in chunks on two workers: the same estimates as the same chunks
+    here, and the forces that made the readings."""
+    rng = np.random.default_rng(4)
+    f, T, mu = rng.uniform(0.1, 0.3, 250), rng.uniform(1.5, 2.5, 250), rng.uniform(0.3, 0.5, 250)
+    made = solve_here(prototype, {"t1": T}, [(0.25, np.stack([0 * f, 0 * f, -f], 1))],
+                      values={"friction": mu})
+    disp = [{"t1": y} for y in made.displacements["t1"]]
+    ten = [{"t1": t} for t in T]
+    args = (prototype, ["t1"], TIP, disp, ten)
+    there = estimate_batch(client, *args, values={"friction": mu}, task_size=100)
+    here = estimate_batch(None, *args, values={"friction": mu}, task_size=100)
+    assert all(e.converged for e in there) and len(there) == 250
+    np.testing.assert_allclose([e.magnitudes[0] for e in there], f, rtol=1e-6)
+    for a, b in zip(there, here):
+        np.testing.assert_allclose(a.magnitudes, b.magnitudes, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.sigma, b.sigma, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.markers["tip"], b.markers["tip"], rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="t2: no such tendon|need at least"):
+        estimate_batch(client, prototype, ["t1"], TIP * 2, disp, ten)
 
 
 def test_a_worker_killed_mid_job(client, prototype):

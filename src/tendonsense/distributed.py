@@ -2,7 +2,8 @@
 ``pip install "tendonsense[distributed]"``).
 
 The work is cut into tasks that are each a compiled batch: a chunk of ``task_size`` forward
-solves (:func:`solve_batch`), or one whole log (:func:`estimate_logs`). A task carries the
+solves (:func:`solve_batch`) or independent readings (:func:`estimate_batch`), or one whole
+log (:func:`estimate_logs`). A task carries the
 robot, the numbers and file paths, never a compiled program: each worker compiles a program
 once per robot structure, or loads it from the program cache (:mod:`tendonsense.settings`,
 ``TENDONSENSE_CACHE_DIR``; a shared folder when the cluster has one). Every function takes a
@@ -20,14 +21,17 @@ from typing import Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
+from .estimation import problem
 from .filtering import WALK
 from .forward import model_for
-from .inputs import Noise, Unknown, check_point_forces, check_unknowns
+from .inputs import Noise, Unknown, check_point_forces, check_unknowns, tendon_vector
 from .logs import LogSummary, estimate_file
 from .readings import log_outputs
+from .result import SampleEstimate
 from .robot import Robot
 from .settings import cache_dir
-from .tracking import BatchResult, batch_inputs
+from .tracking import BatchResult, batch_inputs, varied_values
+from .tracking import estimate_batch as estimate_here
 from .tracking import solve_batch as solve_local
 
 #: how to install what this module needs
@@ -173,6 +177,52 @@ def solve_batch(client, robot: Robot, tensions, point_forces: Sequence = (),
         {t: np.concatenate([p.displacements[t] for p in parts]) for t in robot.tendon_names},
         np.concatenate([p.converged for p in parts]),
         np.concatenate([p.iterations for p in parts]))
+
+
+def estimate_chunk(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
+                   point_forces, noise: Noise, displacements, tensions,
+                   values: Mapping[str, np.ndarray]) -> list[SampleEstimate]:
+    """One task of :func:`estimate_batch`: the problem set up on the worker, then
+    :func:`tendonsense.tracking.estimate_batch` over the chunk's readings on one thread."""
+    prob = problem(robot, measured, unknowns, point_forces)
+    return estimate_here(prob, displacements, tensions, noise, workers=1, values=dict(values))
+
+
+def estimate_batch(client, robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
+                   displacements: Sequence[Mapping[str, float]],
+                   tensions: Sequence[Mapping[str, float]], point_forces=(),
+                   noise: Noise = Noise(), values: Mapping[str, object] | None = None,
+                   task_size: int = TASK_SIZE,
+                   progress: Progress | None = None) -> list[SampleEstimate]:
+    """:func:`tendonsense.tracking.estimate_batch` over a cluster (``client``; ``None``:
+    this process): independent readings of the tendons ``measured`` ({tendon: m} and
+    {tendon: N} per sample), each with its own ``values`` if given, estimated for
+    ``unknowns``; cut into chunks of ``task_size`` readings (:func:`task_chunks`), each chunk
+    a task (:func:`estimate_chunk`), returned in the input order. The same numbers as
+    :func:`estimate_chunk` on each chunk here; checked here before anything is sent.
+
+    >>> est = estimate_batch(client, robot, ["t1"], [PointForceUnknown(0.25, (0, 0, -1))],
+    ...                      [{"t1": -0.005}] * 5000, [{"t1": 2.1}] * 5000,
+    ...                      values={"friction": rng.uniform(0.3, 0.5, 5000)})
+    """
+    prob = problem(robot, measured, unknowns, point_forces)
+    n = len(displacements)
+    if n == 0 or len(tensions) != n:
+        raise ValueError(f"batch: {n} displacement and {len(tensions)} tension readings (one "
+                         f"of each per sample, at least one)")
+    for y, t in zip(displacements, tensions):
+        tendon_vector(robot, y, "displacement")
+        tendon_vector(robot, t, "tension")
+    varied = varied_values(prob.model.values, values, n)
+    tasks = [(robot, list(measured), list(unknowns), list(point_forces), noise,
+              [displacements[k] for k in c], [tensions[k] for k in c],
+              {k: np.ascontiguousarray(v[c]) for k, v in varied.items()})
+             for c in task_chunks(n, task_size)]
+    parts = _run(client, estimate_chunk, tasks, progress)
+    for part in parts:
+        if isinstance(part, Exception):
+            raise part
+    return [e for part in parts for e in part]
 
 
 # ---------------------------------------------------------------------------------- many logs
