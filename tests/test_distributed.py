@@ -189,6 +189,7 @@ def test_the_command_line_on_many_logs(client, logs, tmp_path, capsys):
      "not both"),
     (["{out}/nothing/*.csv", "-o", "{out}/"], "no file matches"),
     (["{logs}/run0.csv", "-o", "{out}/run0.csv", "--workers", "2"], "--workers goes with"),
+    (["{logs}/*.csv", "-o", "{out}/a/b/"], "no folder"),
 ])
 def test_the_command_line_checks_before_starting_a_cluster(argv, message, logs, tmp_path,
                                                            capsys):
@@ -196,7 +197,18 @@ def test_the_command_line_checks_before_starting_a_cluster(argv, message, logs, 
     code = cli.main(["estimate", PROTOTYPE, "--unknown", "0.25,0,0,-1", "--quiet",
                      "--readings", *args])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(err) == 1 and message in err[0], err
+    assert code == (1 if message == "no folder" else 2), err
+    assert len(err) == 1 and message in err[0], err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_no_output_folder_without_a_cluster(logs, tmp_path, capsys):
+    """A scheduler that cannot be reached: one line, exit 1, no OUTDIR made."""
+    code = cli.main(["estimate", PROTOTYPE, "--unknown", "0.25,0,0,-1", "--quiet", "--readings",
+                     str(logs[0] / "*.csv"), "-o", f"{tmp_path}/out/", "--scheduler",
+                     "tcp://127.0.0.1:9"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1 and "cannot connect" in err[0], err
     assert list(tmp_path.iterdir()) == []
 
 

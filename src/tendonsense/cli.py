@@ -972,14 +972,14 @@ def _logs(args, robot) -> int:
     status 1 if a log failed, 3 if a row did not converge."""
     from .distributed import estimate_logs
     out = Path(args.estimates)
-    try:
-        out.mkdir(exist_ok=True)
-    except OSError as exc:
-        raise ValueError(f"-o/--estimates {args.estimates}: cannot make the folder "
-                         f"({exc.strerror})") from None
     prog = _Progress(args, "estimate")
     try:
         with _on_cluster(args) as client:
+            try:
+                out.mkdir(exist_ok=True)
+            except OSError as exc:
+                raise ValueError(f"-o/--estimates {args.estimates}: cannot make the folder "
+                                 f"({exc.strerror})") from None
             done = estimate_logs(
                 client, robot, args.logs, out, args.unknown, _point_forces(args),
                 Noise(args.length_noise, args.tension_noise), args.dynamic, _walk(args), prog)
