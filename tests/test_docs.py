@@ -60,9 +60,12 @@ def test_shell_commands_parse(page):
     for command in shell_commands(page):
         args = parser.parse_args(shlex.split(command)[1:])
         for name in ("robot", "readings", "snapshots", "csv"):
-            value = getattr(args, name, None)
-            if value and value != "-" and Path(value).name not in WRITTEN:
-                assert (ROOT / value).exists(), f"{page.name}: {command}: no file {value}"
+            values = getattr(args, name, None)
+            for value in values if isinstance(values, list) else [values]:
+                if value and value != "-" and Path(value).name not in WRITTEN:
+                    found = (Path(value).exists() if Path(value).is_absolute()
+                             else list(ROOT.glob(value)))
+                    assert found, f"{page.name}: {command}: no file {value}"
 
 
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")

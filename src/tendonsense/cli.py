@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import argparse
 import csv
+import glob
+import importlib.util
 import io
 import json
 import os
@@ -225,13 +227,16 @@ def build_parser() -> argparse.ArgumentParser:
                                             "the range of forces)"))
     p.add_argument("--unknown", action="append", default=[], type=_unknown, required=True,
                    metavar="X,DX,DY,DZ|?,DX,DY,DZ|A:B,DX,DY,DZ|gravity", help=UNKNOWN_HELP)
-    p.add_argument("--readings", metavar="READINGS.csv",
+    p.add_argument("--readings", nargs="+", metavar="READINGS.csv",
                    help="estimate every row of a readings log (CSV); '-' reads the log live "
-                        "from standard input")
-    p.add_argument("-o", "--estimates", metavar="ESTIMATES.csv",
+                        "from standard input; several logs (files, or a quoted pattern such as "
+                        "'logs/*.csv') go with -o OUTDIR/")
+    p.add_argument("-o", "--estimates", metavar="ESTIMATES.csv|OUTDIR/",
                    help="with --readings: write the estimates to this CSV file (atomically, "
                         "when every row is done); without it, or with '-', each result row goes "
-                        "to standard output as soon as it is estimated")
+                        "to standard output as soon as it is estimated; with several logs a "
+                        "folder (made if missing), one output per log under the log's name")
+    _cluster_options(p, "several logs (a log per task)", "the logs and OUTDIR")
     p.add_argument("--output", dest="estimates", help=argparse.SUPPRESS)
     p.add_argument("--length-noise", type=_positive, default=1e-4, metavar="M",
                    help="standard deviation of the tendon length sensors in metres, for the "
@@ -351,6 +356,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--log", required=True, metavar="LOG.csv",
                    help="the readings log to write (atomically)")
 
+    p = command("sweep", "forward statics over many parameter sets (a design sweep, a Monte "
+                "Carlo), on a Dask cluster if asked",
+                "Solve the forward statics once per row of a parameter-set table (tensions, "
+                "E, ν, ρ, μ and a known load per set; a value not given is the robot file's) "
+                "and write one result row per set: the set's own columns, its markers, its "
+                "tendons' length changes and whether it converged. Every set is solved by "
+                "one compiled program, whatever its numbers.")
+    _robot_argument(p)
+    p.add_argument("sets", metavar="SETS.csv",
+                   help="the parameter sets, one per row: tension_<tendon>, young_modulus, "
+                        "poisson_ratio, density, friction, friction_<tendon>, load_X/_fx/_fy/"
+                        "_fz, and descriptive columns (id, name, note) copied to the results")
+    p.add_argument("-o", "--results", required=True, metavar="RESULTS.csv",
+                   help="the results, one row per set (written atomically)")
+    p.add_argument("--point-force", action="append", default=[], metavar="X,FX,FY,FZ",
+                   type=_numbers(4, "X,FX,FY,FZ"),
+                   help="a known force (N, global) at X m from the base, the same in every "
+                        "set; repeatable")
+    _cluster_options(p, "the sets")
+    p.add_argument("--task-size", type=int, default=1000, metavar="N",
+                   help="with --workers or --scheduler: sets per task (default 1000)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
+
     p = command("experiments", "re-run the paper's experiments (its Tables II to IV)",
                 "Estimate every row of the paper's experiments and compare with the applied "
                 "loads and the paper's own estimates.")
@@ -359,6 +388,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true",
                    help="print the result as one JSON object instead of text")
     return parser
+
+
+def _cluster_options(p, what: str, reach: str = ""):
+    p.add_argument("--workers", type=int, metavar="N",
+                   help=f"run {what} on a local Dask cluster of N worker processes (default: "
+                        f"here, in this process; needs pip install 'tendonsense[distributed]')")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help=f"run {what} on the running Dask cluster whose scheduler is at ADDRESS "
+                        f"(e.g. tcp://10.0.0.5:8786)" + (f"; {reach} must be reachable by its "
+                                                         f"workers at the same paths" if reach
+                                                         else ""))
 
 
 def _view_options(p):
@@ -449,6 +489,14 @@ def _check(args, robot) -> None:
             _writable(args.plot, "--plot")
     elif cmd == "simulate":
         _check_simulate(args, robot)
+    elif cmd == "sweep":
+        from .readings import read_parameter_sets
+        _check_cluster(args)
+        if args.task_size < 1:
+            raise UsageError(f"tendonsense sweep: --task-size {args.task_size}: at least 1")
+        inputs.check_point_forces(robot, _point_forces(args))
+        _writable(args.results, "-o/--results")
+        args.sets_read = read_parameter_sets(args.sets, robot)
     elif cmd == "identify":
         from .readings import read_snapshots
         bad = [p for p in args.param or () if p not in inputs.parameter_names(robot)]
@@ -497,6 +545,15 @@ def _check_estimate(args, robot, tensions, displacements):
         if any(getattr(u, "located", False) for u in args.unknown):
             raise UsageError("tendonsense estimate: --dynamic takes forces at known points "
                              "(a location range 'A:B' or '?' is estimated quasi-statically)")
+    args.logs = None
+    if args.readings is not None and _many_logs(args):
+        return _check_logs(args, robot, tensions, displacements)
+    for flag, given in (("--workers", args.workers is not None), ("--scheduler", args.scheduler)):
+        if given:
+            raise UsageError(f"tendonsense estimate: {flag} goes with several logs "
+                             f"(--readings PATTERN -o OUTDIR/)")
+    if args.readings is not None:
+        args.readings = args.readings[0]
     if args.readings is None:
         for flag, given in (("--view", args.view), ("-o/--estimates", args.estimates),
                             ("--dynamic", args.dynamic)):
@@ -520,10 +577,10 @@ def _check_estimate(args, robot, tensions, displacements):
                              "output; leave out -o (or redirect standard output)")
         _writable(args.estimates, "-o/--estimates")
     if args.readings != "-":
-        from .readings import read_readings
+        from .readings import has_time, read_readings
         args.log = read_readings(args.readings, robot)
         inputs.check_unknowns(robot, args.log[0], args.unknown)
-        if args.dynamic and not _has_time(args.readings):
+        if args.dynamic and not has_time(args.readings):
             raise ReadingsError(f"{args.readings}: no time column: estimation in motion "
                                 f"(--dynamic) needs each row's time stamp, s")
     if args.dynamic and robot.rod.damping <= 0:
@@ -531,10 +588,76 @@ def _check_estimate(args, robot, tensions, displacements):
               f"quasi-static model", file=sys.stderr)
 
 
-def _has_time(path) -> bool:
-    """Whether a readings log's header has a ``time`` column."""
-    with open(path, newline="") as fh:
-        return "time" in [c.strip() for c in next(csv.reader(fh), [])]
+#: the characters of a --readings pattern
+PATTERN = frozenset("*?[")
+
+
+def _many_logs(args) -> bool:
+    """Whether estimate --readings names several logs: more than one file, a pattern, or an
+    output folder (-o OUTDIR/)."""
+    out = args.estimates
+    return (len(args.readings) > 1 or any(PATTERN & set(r) for r in args.readings)
+            or (out not in (None, "-") and (out.endswith(("/", os.sep)) or Path(out).is_dir())))
+
+
+def _check_logs(args, robot, tensions, displacements):
+    """estimate over several logs: the patterns expanded, the output folder and the cluster
+    options checked, before any log is read or a cluster started."""
+    from .readings import log_outputs
+    _check_cluster(args)
+    if displacements or tensions:
+        raise UsageError("tendonsense estimate: --readings replaces --displacement/--tension")
+    for flag, given in (("--view", args.view), ("--plot", args.plot)):
+        if given:
+            raise UsageError(f"tendonsense estimate: {flag} goes with a single log")
+    if args.estimates in (None, "-"):
+        raise UsageError("tendonsense estimate: several logs (--readings) need -o OUTDIR/, a "
+                         "folder for one output per log")
+    logs: list[str] = []
+    for r in args.readings:
+        if r == "-":
+            raise UsageError("tendonsense estimate: --readings -: standard input is one live "
+                             "log, not one of several")
+        found = sorted(glob.glob(r)) if PATTERN & set(r) else [r]
+        if not found:
+            raise UsageError(f"tendonsense estimate: --readings {r}: no file matches")
+        logs += [f for f in found if f not in logs]
+    out = Path(args.estimates)
+    folder = out if out.exists() else out.parent
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"-o/--estimates {args.estimates}: not a folder (several logs write "
+                         f"one output each into a folder)")
+    if not folder.is_dir():
+        raise ValueError(f"-o/--estimates {args.estimates}: no folder {str(folder)!r}")
+    if not os.access(folder, os.W_OK):
+        raise ValueError(f"-o/--estimates {args.estimates}: the folder {str(folder)!r} is not "
+                         f"writable")
+    log_outputs(logs, out)
+    inputs.check_unknowns(robot, robot.tendon_names, args.unknown)
+    args.logs = logs
+
+
+def _check_cluster(args):
+    """--workers and --scheduler: one of them at most, a worker at least, Dask installed."""
+    if args.workers is not None and args.scheduler is not None:
+        raise UsageError(f"tendonsense {args.command}: --workers (a local cluster) or "
+                         f"--scheduler (a running one), not both")
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"tendonsense {args.command}: --workers {args.workers}: needs at "
+                         f"least one worker process")
+    if (args.workers is not None or args.scheduler is not None) and \
+            importlib.util.find_spec("distributed") is None:
+        raise ValueError("--workers and --scheduler run on Dask: pip install "
+                         "'tendonsense[distributed]'")
+
+
+def _on_cluster(args):
+    """A context giving a Dask client (--workers, --scheduler), or None: work here."""
+    from contextlib import nullcontext
+    if args.workers is None and args.scheduler is None:
+        return nullcontext()
+    from .distributed import cluster
+    return cluster(args.workers or 1, args.scheduler)
 
 
 def _point_forces(args):
@@ -846,6 +969,42 @@ def _log(args, robot) -> bool:
     return good == len(samples)
 
 
+def _logs(args, robot) -> int:
+    """estimate over several logs (:func:`tendonsense.distributed.estimate_logs`): one output
+    per log in OUTDIR, on a Dask cluster with --workers or --scheduler, else here one after
+    another; a log that cannot be used is named on stderr and the others written. Exit
+    status 1 if a log failed, 3 if a row did not converge."""
+    from .distributed import estimate_logs
+    out = Path(args.estimates)
+    prog = _Progress(args, "estimate")
+    try:
+        with _on_cluster(args) as client:
+            try:
+                out.mkdir(exist_ok=True)
+            except OSError as exc:
+                raise ValueError(f"-o/--estimates {args.estimates}: cannot make the folder "
+                                 f"({exc.strerror})") from None
+            done = estimate_logs(
+                client, robot, args.logs, out, args.unknown, _point_forces(args),
+                Noise(args.length_noise, args.tension_noise), args.dynamic, _walk(args), prog)
+    finally:
+        prog.close()
+    failed = [s for s in done if s.error]
+    for s in failed:
+        print(f"tendonsense: {s.error}", file=sys.stderr)
+    total = {k: sum(getattr(s, k) for s in done) for k in ("samples", "converged", "skipped")}
+    if args.json:
+        print(json.dumps({"logs": [s.to_json() for s in done], **total,
+                          "failed": [s.log for s in failed], "output": str(out)}))
+    else:
+        print(f"estimated {len(done) - len(failed)} of {len(done)} logs ({total['samples']} "
+              f"samples: {total['converged']} converged, {total['skipped']} skipped)"
+              + (f"; {len(failed)} failed" if failed else "") + f"; wrote into {out}")
+    if failed:
+        return 1
+    return 0 if total["converged"] == total["samples"] else _not_converged()
+
+
 def _walk(args) -> float:
     from .filtering import WALK
     return WALK if args.force_walk is None else args.force_walk
@@ -1092,8 +1251,36 @@ def _simulate(args, robot) -> bool:
     return sim.ok
 
 
+def _sweep(args, robot) -> bool:
+    """Forward statics per parameter set, here (:func:`tendonsense.tracking.solve_batch`) or
+    on a Dask cluster (:func:`tendonsense.distributed.solve_batch`); RESULTS.csv written
+    atomically."""
+    from .readings import sweep_rows, write_csv_atomic
+    sets = args.sets_read
+    forces = _point_forces(args) + sets.loads
+    prog = _Progress(args, "sweep")
+    try:
+        with _on_cluster(args) as client:
+            if client is None:
+                from .tracking import solve_batch
+                out = solve_batch(robot, sets.tensions, forces, sets.values)
+            else:
+                from .distributed import solve_batch
+                out = solve_batch(client, robot, sets.tensions, forces, sets.values,
+                                  args.task_size, prog)
+    finally:
+        prog.close()
+    write_csv_atomic(args.results, *sweep_rows(robot, sets, out))
+    n, good = len(sets.rows), int(out.converged.sum())
+    if args.json:
+        print(json.dumps({"sets": n, "converged": good, "output": str(args.results)}))
+    else:
+        print(f"solved {n} parameter sets: {good} converged; wrote {args.results}")
+    return good == n
+
+
 RUN = {"solve": _single, "fk": _single, "view": _view, "identify": _identify,
-       "experiments": _experiments, "simulate": _simulate}
+       "experiments": _experiments, "simulate": _simulate, "sweep": _sweep}
 
 
 def main(argv=None) -> int:
@@ -1110,6 +1297,8 @@ def main(argv=None) -> int:
             return 0 if _analysis_run(args) else _not_converged()
         robot = load_robot(args.robot)
         _check(args, robot)
+        if args.command == "estimate" and args.logs is not None:
+            return _logs(args, robot)
         if args.command == "estimate":
             ok = (_single if args.readings is None else _log)(args, robot)
         else:

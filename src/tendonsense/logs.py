@@ -7,17 +7,19 @@ from __future__ import annotations
 
 import csv
 import itertools
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
 from .estimation import Noise, Unknown, problem
 from .filtering import WALK
-from .inputs import tendon_vector
+from .inputs import check_unknowns, tendon_vector
 from .online import OnlineEstimator
-from .readings import (ReadingsError, Sample, located, output_header, output_row,
-                       parse_header, parse_row, with_sliding)
+from .readings import (ReadingsError, Sample, has_time, located, output_header, output_row,
+                       output_rows, parse_header, parse_row, read_readings, with_sliding,
+                       write_csv_atomic)
 from .robot import Robot
 from .sliding import (EDGE, FIXED_POINT, STATE_TOL, FrictionHistory, direction,
                       turning_program)
@@ -132,6 +134,53 @@ def estimate_readings(robot: Robot, measured: Sequence[str], samples: Sequence[S
         if progress:
             progress(first + len(estimates), len(samples))
     return out
+
+
+@dataclass(frozen=True)
+class LogSummary:
+    """What became of one log of many (:func:`estimate_file`): its rows' counts, or why it
+    could not be estimated (``error``, naming the log; then nothing was written)."""
+
+    log: str
+    output: str
+    samples: int = 0
+    converged: int = 0
+    skipped: int = 0
+    error: str | None = None
+
+    def to_json(self) -> dict:
+        return {"log": self.log, "output": None if self.error else self.output,
+                "samples": self.samples, "converged": self.converged, "skipped": self.skipped,
+                "error": self.error}
+
+
+def estimate_file(robot: Robot, log: str | Path, out: str | Path, unknowns: Sequence[Unknown],
+                  point_forces=(), noise: Noise = Noise(), dynamic: bool = False,
+                  walk: float = WALK) -> LogSummary:
+    """Read the log ``log``, estimate every row (:func:`estimate_readings`) and write the
+    estimates to ``out`` atomically, as ``estimate --readings LOG -o OUT`` does. A log that
+    cannot be used (unreadable, a bad header, too few measured tendons for ``unknowns``) is
+    not raised but returned as :attr:`LogSummary.error`, and nothing is written."""
+    try:
+        measured, samples = read_readings(log, robot)
+        try:
+            check_unknowns(robot, measured, unknowns)
+        except ValueError as exc:
+            raise ValueError(f"{log}: {exc}") from None
+        if dynamic and not has_time(log):
+            raise ReadingsError(f"{log}: no time column: estimation in motion (dynamic) "
+                                f"needs each row's time stamp, s")
+        results = estimate_readings(robot, measured, samples, unknowns, point_forces, noise,
+                                    dynamic=dynamic, walk=walk)
+        write_csv_atomic(out, *output_rows(robot, samples, results, len(unknowns),
+                                           located(unknowns), with_sliding(robot)))
+    except (ValueError, OSError) as exc:
+        msg = str(exc)
+        return LogSummary(str(log), str(out),
+                          error=msg if msg.startswith(str(log)) else f"{log}: {msg}")
+    return LogSummary(str(log), str(out), len(samples),
+                      sum(bool(r is not None and r.converged) for r in results),
+                      sum(bool(s.error) for s in samples))
 
 
 def online_estimator(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],

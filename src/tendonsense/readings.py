@@ -154,6 +154,30 @@ def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sampl
     return columns.measured, samples
 
 
+def has_time(path: str | Path) -> bool:
+    """Whether a readings log's header has a ``time`` column."""
+    with open(path, newline="") as fh:
+        return "time" in [c.strip() for c in next(csv.reader(fh), [])]
+
+
+def log_outputs(logs: Sequence[str | Path], out_dir: str | Path) -> list[Path]:
+    """The output file of each of many logs: ``out_dir`` / the log's own name. A ValueError
+    if two logs share a name or an output would overwrite a log."""
+    outs = [Path(out_dir) / Path(log).name for log in logs]
+    seen: dict[Path, str | Path] = {}
+    for log, out in zip(logs, outs):
+        if out in seen:
+            raise ValueError(f"{seen[out]} and {log}: two logs of the same name would write "
+                             f"the same output {out}")
+        seen[out] = log
+    inputs = {Path(log).resolve() for log in logs}
+    for log, out in zip(logs, outs):
+        if out.resolve() in inputs:
+            raise ValueError(f"{log}: its output {out} would overwrite a log (choose another "
+                             f"output folder)")
+    return outs
+
+
 DESCRIPTIVE = ("source", "note", "comment", "time", "id", "name")
 
 
@@ -367,6 +391,114 @@ class AtomicText(io.TextIOWrapper):
     def __exit__(self, *exc):
         self.close()
 
+
+
+#: the values a parameter set may give, with the rule each is checked by
+SET_VALUES = {"young_modulus": ("> 0", lambda v: v > 0),
+              "poisson_ratio": ("in (-1, 0.5]", lambda v: -1 < v <= 0.5),
+              "density": (">= 0", lambda v: v >= 0),
+              "friction": (">= 0", lambda v: v >= 0)}
+LOAD_COLUMNS = ("load_X", "load_fx", "load_fy", "load_fz")
+
+
+@dataclass(frozen=True)
+class ParameterSets:
+    """SETS.csv (:func:`read_parameter_sets`): one forward solve per row, as the arguments of
+    :func:`~tendonsense.tracking.solve_batch`, and the file's own cells to write back."""
+
+    header: list[str]
+    rows: list[list[str]]
+    tensions: np.ndarray  # (N, n_t), tendons in file order; a tendon not given is slack
+    values: dict[str, np.ndarray]  # {name: (N,)}; friction (N, n_t)
+    loads: list[tuple[np.ndarray, np.ndarray]]  # [] or [(X (N,), f (N, 3))]
+
+
+def read_parameter_sets(path: str | Path, robot: Robot) -> ParameterSets:
+    """SETS.csv: one parameter set per row, for a sweep or a Monte Carlo. Columns (any,
+    besides descriptive ones such as ``id`` or ``note``): ``tension_<tendon>`` (N, a tendon
+    without a column is slack), ``young_modulus`` (Pa), ``poisson_ratio``, ``density``
+    (kg/m³), ``friction`` (one μ for every tendon), ``friction_<tendon>`` (that tendon's μ),
+    and a known point load ``load_X``, ``load_fx``, ``load_fy``, ``load_fz`` (m, N, global).
+    A value not given is the robot file's. Every cell is checked; an error names the row and
+    the column."""
+    path = Path(path)
+    raw = read_csv_rows(path, ReadingsError)
+    header = [h.strip() for h in raw[0]] if raw else []
+    rows = [r for r in raw[1:] if any(c.strip() for c in r)]
+    if not rows:
+        raise ReadingsError(f"{path}: no parameter sets (a header row, then one row per set)")
+    tendons = robot.tendon_names
+    numeric = []
+    for col in header:
+        kind, _, name = col.partition("_")
+        if col in SET_VALUES or col in LOAD_COLUMNS or (
+                kind in ("tension", "friction") and name in tendons):
+            numeric.append(col)
+        elif col not in DESCRIPTIVE:
+            raise ReadingsError(
+                f"{path}: column {col!r} is not tension_<tendon>, young_modulus, "
+                f"poisson_ratio, density, friction, friction_<tendon>, load_X/_fx/_fy/_fz or "
+                f"descriptive ({', '.join(DESCRIPTIVE)})")
+    if len(set(header)) < len(header):
+        raise ReadingsError(f"{path}: a column appears twice")
+    load = [c for c in LOAD_COLUMNS if c in header]
+    if load and len(load) < 4:
+        raise ReadingsError(f"{path}: a known load needs load_X, load_fx, load_fy and load_fz")
+    data = np.empty((len(rows), len(numeric)))
+    for i, row in enumerate(rows):
+        if len(row) != len(header):
+            raise ReadingsError(f"{path}: set {i + 1}: {len(row)} fields, the header has "
+                                f"{len(header)}")
+        for j, col in enumerate(numeric):
+            text = row[header.index(col)].strip()
+            try:
+                v = float(text)
+            except ValueError:
+                v = math.nan
+            if not math.isfinite(v):
+                raise ReadingsError(f"{path}: set {i + 1}: column {col}: {text!r} is not a "
+                                    f"finite number")
+            kind, _, name = col.partition("_")
+            rule = SET_VALUES.get(col) or SET_VALUES.get(kind if kind == "friction" else "")
+            error = (tension_error(name, v) if kind == "tension" else
+                     f"{col} = {v:g}: must be {rule[0]}" if rule and not rule[1](v) else
+                     f"load_X = {v:g} is outside the rod [0, {robot.rod.length:g}]"
+                     if col == "load_X" and not 0 <= v <= robot.rod.length else None)
+            if error:
+                raise ReadingsError(f"{path}: set {i + 1}: {error}")
+            data[i, j] = v
+    column = {c: data[:, j] for j, c in enumerate(numeric)}
+    n = len(rows)
+    T = np.stack([column.get(f"tension_{t}", np.zeros(n)) for t in tendons], axis=1)
+    values = {k: column[k] for k in ("young_modulus", "poisson_ratio", "density") if k in column}
+    if any(c == "friction" or c.startswith("friction_") for c in column):
+        mu = np.tile([t.friction for t in robot.tendons], (n, 1)).astype(float)
+        if "friction" in column:
+            mu[:] = column["friction"][:, None]
+        for j, t in enumerate(tendons):
+            if f"friction_{t}" in column:
+                mu[:, j] = column[f"friction_{t}"]
+        values["friction"] = mu
+    loads = ([(column["load_X"], np.stack([column[c] for c in LOAD_COLUMNS[1:]], axis=1))]
+             if load else [])
+    return ParameterSets(header, [list(r) for r in rows], T, values, loads)
+
+
+def sweep_rows(robot: Robot, sets: ParameterSets, result) -> tuple[list[str], list[list]]:
+    """Header and rows of a sweep's RESULTS.csv: each set's own cells, then its markers
+    (``marker_<name>_x/_y/_z``, m), its tendons' length changes (``displacement_<tendon>``,
+    m) and ``converged`` (a :class:`~tendonsense.tracking.BatchResult` ``result``)."""
+    header = (sets.header + [f"marker_{m}_{a}" for m in robot.marker_names for a in AXES]
+              + [f"displacement_{t}" for t in robot.tendon_names] + ["converged"])
+    rows = []
+    for k, cells in enumerate(sets.rows):
+        ok = bool(result.converged[k])
+        out = [repr(float(v)) if ok else "" for m in robot.marker_names
+               for v in result.markers[m][k]]
+        out += [repr(float(result.displacements[t][k])) if ok else ""
+                for t in robot.tendon_names]
+        rows.append(cells + out + ["true" if ok else "false"])
+    return header, rows
 
 
 def read_tension_schedule(path: str | Path,

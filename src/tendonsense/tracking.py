@@ -68,7 +68,7 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
             if name not in robot.tendon_names:
                 raise ValueError(f"{what} {name}: no such tendon (robot has "
                                  f"{', '.join(robot.tendon_names)})")
-    varied = _varied_values(model.values, values, n)
+    varied = varied_values(model.values, values, n)
     T, Y = np.zeros((n, len(robot.tendons))), np.zeros((n, len(robot.tendons)))
     out: list[SampleEstimate | None] = [None] * n
     for k in range(n):
@@ -156,7 +156,7 @@ def estimate_batch(prob: Problem, displacements: Sequence[Mapping[str, float]],
     from concurrent.futures import ThreadPoolExecutor
     robot = prob.robot
     n = len(displacements)
-    varied = _varied_values(prob.model.values, values, n)
+    varied = varied_values(prob.model.values, values, n)
     m = np.array([np.concatenate([tendon_vector(robot, y, "displacement"),
                                   tendon_vector(robot, t, "tension")])
                   for y, t in zip(displacements, tensions)]).reshape(n, -1)
@@ -217,7 +217,7 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     from concurrent.futures import ThreadPoolExecutor
     model = model_for(robot)
     structure, base = model.structure, model.values
-    T, X, F, varied = _batch_inputs(robot, base, tensions, point_forces, values)
+    T, X, F, varied = batch_inputs(robot, base, tensions, point_forces, values)
     n, n_t = T.shape
     if n == 0:
         raise ValueError("batch: no samples")
@@ -263,7 +263,7 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
                        {t: y[:, j] for j, t in enumerate(robot.tendon_names)}, conv, its)
 
 
-def _batch_inputs(robot: Robot, base, tensions, point_forces, values):
+def batch_inputs(robot: Robot, base, tensions, point_forces, values):
     """Validated batch arrays: T (N, n_t), X (N, n_p), F (N, n_p, 3) and the varied values."""
     names = robot.tendon_names
     if isinstance(tensions, Mapping):
@@ -286,10 +286,10 @@ def _batch_inputs(robot: Robot, base, tensions, point_forces, values):
         raise ValueError("batch: a tension is negative (a tendon cannot push)")
     if np.any((X < 0) | (X > robot.rod.length)):
         raise ValueError(f"batch: a point force X is outside the rod [0, {robot.rod.length:g}]")
-    return T, X, F, _varied_values(base, values, n)
+    return T, X, F, varied_values(base, values, n)
 
 
-def _varied_values(base, values, n: int) -> dict[str, np.ndarray]:
+def varied_values(base, values, n: int) -> dict[str, np.ndarray]:
     """Per-sample values {name: (n, ...)}, validated: a name of :data:`VALUE_NAMES`, finite;
     ``friction`` (n,) is one μ for every tendon, (n, n_t) one per tendon."""
     varied = {}
