@@ -15,6 +15,7 @@ import dataclasses
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -51,7 +52,8 @@ def stick_slip_truth(robot, tensions, X):
         if prev is None:
             bvp.solve()
         else:
-            bvp.solution = prev.solution
+            mesh = np.linspace(0.0, 1.0, 41)  # the last solution as the start, on a fixed mesh
+            bvp.solution = SimpleNamespace(x=mesh, y=prev.solution.sol(mesh))
             bvp._solve((1.0,), 11, 1e-7, warm=True)
         held, prev = {0: bvp.segment_tensions()[0]}, bvp
         out.append(bvp.tendon_length_changes()["t1"])
