@@ -241,14 +241,15 @@ def test_cli_log_columns(prototype, tmp_path):
     y = solve(prototype, {"t1": 2.0}, [(0.25, (0.0, 0.0, -0.2))]).displacements["t1"]
     log.write_text("time,tension_t1,tension_t2,tension_t3,displacement_t1,sliding_t1\n"
                    + "".join(f"{0.1 * i},2.0,0,0,{y!r},{d}\n"
-                             for i, d in enumerate(("in", "out", "up", "stuck"))))
+                             for i, d in enumerate(("in", "out", "up", "stuck", ""))))
     out = tmp_path / "out.csv"
     r = _cli("estimate", PROTOTYPE, "--readings", log, "--unknown", "0.25,0,0,-1", "-o", out,
              "--quiet")
     assert r.returncode == 3 and "row 3" in r.stderr and "sliding_t1" in r.stderr, r.stderr
     import csv
     rows = list(csv.DictReader(open(out)))
-    assert [row["sliding_t1"] for row in rows] == ["in", "out", "", "stuck"]  # stuck at out
+    # stuck at out; then, not given, kept out by the history (the tension does not change)
+    assert [row["sliding_t1"] for row in rows] == ["in", "out", "", "stuck", "out"]
     assert float(rows[0]["magnitude_1"]) == pytest.approx(0.2, rel=1e-6)
     assert rows[0]["magnitude_low_1"] == "" and rows[2]["converged"] == "false"
     low, high = float(rows[3]["magnitude_low_1"]), float(rows[3]["magnitude_high_1"])

@@ -108,7 +108,9 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
         error = f"has {len(raw)} fields, the header has {len(header)}"
     else:
         for col, text in zip(header, raw):
-            if col.startswith("sliding_"):
+            if col.startswith("sliding_"):  # an empty cell: the direction is not known here
+                if not text.strip():
+                    continue
                 sliding[col[8:]] = text.strip().lower()
                 if sliding[col[8:]] not in SLIDING:
                     error = (f"column {col}: {text.strip()!r} is not "
