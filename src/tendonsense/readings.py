@@ -22,6 +22,14 @@ from .robot import Robot
 AXES = ("x", "y", "z")
 
 
+def _number(text: str) -> float:
+    """The number in a CSV cell, NaN if it is not one."""
+    try:
+        return float(text)
+    except ValueError:
+        return math.nan
+
+
 class ReadingsError(ValueError):
     """A readings file that cannot be used at all (bad header, unreadable)."""
 
@@ -117,10 +125,7 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
                              f"{', '.join(SLIDING[:-1])} or {SLIDING[-1]}")
                     break
                 continue
-            try:
-                v = float(text)
-            except ValueError:
-                v = math.nan
+            v = _number(text)
             if not math.isfinite(v):
                 error = f"column {col}: {'missing' if not text.strip() else repr(text)} value"
                 break
@@ -238,10 +243,7 @@ def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
                 if required:
                     raise SnapshotError(f"{path}: snapshot row {i}: column {col} is missing")
                 return None
-            try:
-                v = float(text)
-            except ValueError:
-                v = math.nan
+            v = _number(text)
             if not math.isfinite(v):
                 raise SnapshotError(f"{path}: snapshot row {i}: column {col}: {text!r} is "
                                     f"not a finite number")
@@ -453,10 +455,7 @@ def read_parameter_sets(path: str | Path, robot: Robot) -> ParameterSets:
                                 f"{len(header)}")
         for j, col in enumerate(numeric):
             text = row[header.index(col)].strip()
-            try:
-                v = float(text)
-            except ValueError:
-                v = math.nan
+            v = _number(text)
             if not math.isfinite(v):
                 raise ReadingsError(f"{path}: set {i + 1}: column {col}: {text!r} is not a "
                                     f"finite number")
