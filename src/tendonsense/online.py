@@ -124,21 +124,24 @@ class OnlineEstimator:
         try:
             T, y = prob.readings(displacements, tensions)
             names = prob.robot.tendon_names
-            check_sliding(prob.robot, sliding)
-            given = {names.index(n): d for n, d in (sliding or {}).items()}
+            given = {}
+            if sliding:
+                check_sliding(prob.robot, sliding)
+                given = {names.index(n): d for n, d in sliding.items()}
         except ValueError as exc:
             return self._failed(f"bad value: {exc}")
         if self._history is None:
             return self._sample(start, T, y, displacements, tensions, self._values)
         nq = prob.model.nq
-        if not self._history.needs_turning(T, given):  # pulled in: the band does not matter
+        before = self._history.copy()
+        if self._history.pulled(T, given):  # pulled in: the band does not matter
             est = self._sample(start, T, y, displacements, tensions, self._values)
-            if est.converged:  # a failed sample leaves the history as it was
-                self._history.step(T, None, given)
-            return replace(est, friction_state=np.ones(len(names)), sliding=("in",) * len(names))
+            if not est.converged:  # a failed sample leaves the history as it was
+                self._history = before
+            return est
         if self._x is not None:  # the turning of the last shape
             self._history.phi = np.asarray(self._turning(self._x[None, :nq], self._values))[0]
-        before = self._history.copy()
+            before.phi = self._history.phi
         state = self._history.step(T, None, given)
         for _ in range(FIXED_POINT):  # the state at the sample's own shape
             est = self._sample(start, T, y, displacements, tensions, self._signed(state))

@@ -76,7 +76,7 @@ class SampleEstimate:
     locations: np.ndarray = field(default_factory=lambda: np.zeros(0))  # located forces' X, m
     location_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
     friction_state: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per tendon, ±1
-    sliding: tuple[str, ...] = ()  # per tendon: in, out or stuck (a log that follows friction)
+    sliding: tuple[str, ...] = ()  # per tendon: in, out or stuck; empty: every one pulled in
     magnitude_range: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # if stuck
 
     @staticmethod

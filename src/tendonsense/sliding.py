@@ -58,14 +58,19 @@ class FrictionHistory:
         """Whether any tendon has friction (without, the direction changes nothing)."""
         return bool(np.any(self.mu > 0))
 
-    def needs_turning(self, tensions, given: Mapping[int, str] | None = None) -> bool:
-        """Whether the next state depends on the turning angles: some tendon's tension falls,
-        or it is not pulled in, or the log says a direction other than in."""
+    def pulled(self, tensions, given: Mapping[int, str] | None = None) -> bool:
+        """If every tendon stays pulled in at this reading whatever its band (its tension
+        rises or holds, it was pulled in, the log says nothing else), take the reading and
+        return True; else return False and change nothing (the state needs :meth:`step`)."""
+        if given and any(d != "in" for d in given.values()):
+            return False
         T = np.asarray(tensions, float)
-        live = (T > 0) & ~np.isnan(self.s)
+        live = T > 0
         p = np.log(np.where(live, T, 1.0))
-        return bool(np.any(live & ((self.s < 1) | (p < self.p)))
-                    or any(d != "in" for d in (given or {}).values()))
+        if np.any(live & ((self.s < 1) | (p < self.p))):  # NaN (slack before): False
+            return False
+        self.s, self.p = np.where(live, 1.0, np.nan), p
+        return True
 
     def step(self, tensions, phi=None, given: Mapping[int, str] | None = None) -> np.ndarray:
         """The state (n_t,) for the next reading: ``tensions`` (n_t,), N; ``phi`` (n_t,) the
