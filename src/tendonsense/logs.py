@@ -15,14 +15,13 @@ import numpy as np
 
 from .estimation import Noise, Unknown, problem
 from .filtering import WALK
-from .inputs import check_unknowns, tendon_vector
+from .inputs import EDGE, check_unknowns, direction, tendon_vector
 from .online import OnlineEstimator
 from .readings import (ReadingsError, Sample, has_time, located, output_header, output_row,
                        output_rows, parse_header, parse_row, read_readings, with_sliding,
                        write_csv_atomic)
 from .robot import Robot
-from .sliding import (EDGE, FIXED_POINT, STATE_TOL, FrictionHistory, direction,
-                      turning_program)
+from .sliding import FIXED_POINT, STATE_TOL, FrictionHistory, turning_program
 from .tracking import SampleEstimate, series_chunks
 
 #: samples per compiled scan of a file log

@@ -16,10 +16,10 @@ from .estimation import estimate_problem
 from .fastpath import Track, stepper, unpack_row
 from .filtering import WALK, MotionFilter
 from .forward import INADMISSIBLE
-from .inputs import Noise, sliding as check_sliding
+from .inputs import EDGE, Noise, direction, sliding as check_sliding
 from .problem import Problem, band
 from .result import SampleEstimate
-from .sliding import EDGE, FIXED_POINT, STATE_TOL, FrictionHistory, direction, turning_program
+from .sliding import FIXED_POINT, STATE_TOL, FrictionHistory, turning_program
 from .statics import solve_system
 
 #: evaluations of the solve from the straight rod that a sample the fast path could not

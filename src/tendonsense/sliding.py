@@ -19,14 +19,12 @@ import jax
 import numpy as np
 
 from .compiled import Program
-from .inputs import EDGE, direction  # noqa: F401 (API)
 from .model import Structure
 from .statics import CACHE_SIZE
 from .tendons import turning
 
 #: passes to settle friction states with the shapes they give, and the tolerance on a state
 FIXED_POINT, STATE_TOL = 10, 1e-4
-
 
 
 @lru_cache(maxsize=CACHE_SIZE)
