@@ -3,9 +3,10 @@ structure and argument signature, its executable serialised into the cache direc
 (:mod:`tendonsense.settings`), and later processes load the executable instead of tracing,
 lowering and compiling it again. A kept program is keyed by its name, the structure, the
 argument signature, the machine (platform and CPU), XLA's flags and a hash of this package's
-source and of the JAX version, so that an edited model never runs a stale program; a process
-that needs a program another is compiling waits for it. Without a cache
-directory, or if an executable cannot be kept, it is plain :func:`jax.jit`.
+source (the compiler options of :func:`~tendonsense.settings.compiler_options` included) and
+of the JAX version, so that an edited model never runs a stale program; a process that needs
+a program another is compiling waits for it. Without a cache directory, or if an executable
+cannot be kept, it is compiled in this process alone, with the same options.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from .settings import cache_dir
+from .settings import cache_dir, compiler_options
 
 
 @lru_cache(maxsize=1)
@@ -82,7 +83,7 @@ class Program:
         """The kept executable for ``signature``, or a new one compiled and kept."""
         root = cache_dir()
         if root is None:
-            return self.jitted
+            return _compile(self.jitted, args)
         tree, leaves = signature
         described = ",".join(f"{shape}:{dtype}:{weak}" for shape, dtype, weak in leaves)
         digest = hashlib.sha256(f"{self.name}|{self.key}|{tree}|{described}|{_source_hash()}"
@@ -95,12 +96,24 @@ class Program:
             kept = _kept(path)
             if kept is not None:
                 return kept
-            compiled = self.jitted.lower(*args).compile()
+            compiled = _compile(self.jitted, args)
             try:
                 _write_atomic(path, _serialize(compiled))
             except Exception:  # an executable that cannot be kept still runs
                 pass
         return compiled
+
+
+def _compile(jitted, args):
+    """``jitted`` lowered for ``args`` and compiled with this package's compiler options, or
+    without them where this XLA does not have them."""
+    lowered = jitted.lower(*args)
+    try:
+        return lowered.compile(compiler_options())
+    except jax.errors.JaxRuntimeError as e:
+        if "No such compile option" not in str(e):
+            raise
+        return lowered.compile()
 
 
 #: every program of this process, for :func:`release`

@@ -93,7 +93,7 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int) -> Pr
         q0, z = state.x[:nq], state.x[nq:]
 
         def parts(q, z):  # (E, y) with E = K q − B T − F (eq. 7), and B = −∂E/∂T
-            tm = terms(structure, values, q, z, drive, unknowns, 1.0)
+            tm = terms(structure, values, q, z, drive, unknowns, 1.0, actuation=True)
             return (K @ q - tm.load, tm.y[sel]), tm.B
 
         # exact ∂E/∂z, and COLUMNS columns of ∂E/∂q, ∂y/∂q in turn (forward mode): every

@@ -108,8 +108,10 @@ def configuration(values: Values, q, *points: PointSet):
 
     def pull(loads):
         w, c_nu, *w_points = loads
-        w_p = lie.coAd_apply(_vexp(Omega[n:]), jnp.concatenate([jnp.zeros((0, 6)), *w_points]))
-        w = w.at[starts].add(w_p)  # in the frames of the nodes below the points
+        w_p = jnp.zeros((0, 6), w.dtype)
+        if points:
+            w_p = lie.coAd_apply(_vexp(Omega[n:]), jnp.concatenate(w_points))
+            w = w.at[starts].add(w_p)  # in the frames of the nodes below the points
         S = jnp.cumsum(lie.coAd_apply(G, w)[::-1], axis=0)[::-1]
         u = lie.dexp_apply(Omega, jnp.concatenate([lie.Ad_T_apply(G[:-1], S[1:]), w_p]),
                            transpose=True)

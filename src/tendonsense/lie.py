@@ -127,11 +127,12 @@ def ad_apply(xi, u, transpose=False):
     return jnp.concatenate([jnp.cross(w, m), jnp.cross(v, m) + jnp.cross(w, f)], -1)
 
 
-def pointwise(f):
+def pointwise(f, linear=()):
     """``f`` of batches (arrays (..., k), the same leading axes, acting on each element alone)
     with its forward-mode derivative as one small Jacobian per element (found by as many
     passes as the element has components) applied to the tangents: cheaper than carrying
-    many tangents through every operation of ``f``."""
+    many tangents through every operation of ``f``. In the arguments ``linear``, f is linear:
+    their tangent term is f itself, applied to the tangent."""
 
     @jax.custom_jvp
     def g(*args):
@@ -142,13 +143,16 @@ def pointwise(f):
         for i, (x, dx) in enumerate(zip(primals, tangents)):
             if isinstance(dx, SymbolicZero):
                 continue
-            def along(e, i=i):
-                return jax.jvp(lambda y: f(*primals[:i], y, *primals[i + 1:]), (x,), (e,))[1]
-            basis = jnp.broadcast_to(jnp.eye(x.shape[-1], dtype=x.dtype)[:, None],
-                                     (x.shape[-1],) + x.shape)
-            columns = jax.vmap(along)(basis)  # (k, ..., n_out)
-            # unrolled: a loop fusion, not a batch of tiny matrix products
-            term = sum(columns[k] * dx[..., k, None] for k in range(x.shape[-1]))
+            if i in linear:
+                term = f(*primals[:i], dx, *primals[i + 1:])
+            else:
+                def along(e, i=i):
+                    return jax.jvp(lambda y: f(*primals[:i], y, *primals[i + 1:]), (x,), (e,))[1]
+                basis = jnp.broadcast_to(jnp.eye(x.shape[-1], dtype=x.dtype)[:, None],
+                                         (x.shape[-1],) + x.shape)
+                columns = jax.vmap(along)(basis)  # (k, ..., n_out)
+                # unrolled: a loop fusion, not a batch of tiny matrix products
+                term = sum(columns[k] * dx[..., k, None] for k in range(x.shape[-1]))
             d_out = term if d_out is None else d_out + term
         return out, jnp.zeros_like(out) if d_out is None else d_out
 
@@ -169,8 +173,8 @@ def _horner(Omega, v, transpose):
     return v + out
 
 
-_dexp_apply = pointwise(lambda Omega, v: _horner(Omega, v, False))
-_dexp_T_apply = pointwise(lambda Omega, v: _horner(Omega, v, True))
+_dexp_apply = pointwise(lambda Omega, v: _horner(Omega, v, False), linear=(1,))
+_dexp_T_apply = pointwise(lambda Omega, v: _horner(Omega, v, True), linear=(1,))
 
 
 def Ad_apply(g, eta):

@@ -67,17 +67,18 @@ class Terms(NamedTuple):
     """The parts of eq. 7 at one configuration."""
 
     grid: jax.Array  # poses at the grid nodes (n_nodes, 4, 4)
-    B: jax.Array  # (nq, n_t), eq. 14 (left out of compiled programs that do not use it)
+    B: jax.Array | None  # (nq, n_t), eq. 14 (None unless asked for)
     y: jax.Array  # (n_t,), eq. 9
     tensions: jax.Array
     load: jax.Array  # B(q) T + F(q), eq. 7 and 8b
 
 
 def terms(structure: Structure, values: Values, q, z, drive: Drive, unknowns: Unknowns,
-          lam) -> Terms:
+          lam, actuation: bool = False) -> Terms:
     """Every generalized force is one pull-back of forces through the poses
     (:func:`~tendonsense.kinematics.configuration`), so that its exact Jacobian (forward mode
-    through the pull-back) costs O(nq) passes, not O(nq²) body Jacobians."""
+    through the pull-back) costs O(nq) passes, not O(nq²) body Jacobians. ``B`` is formed only
+    with ``actuation`` (else None: a program that does not use it does not trace it)."""
     T = lam * drive.tensions + unknowns.tensions @ z
     a = lam * drive.gravity + z @ unknowns.gravity
     n_loc = unknowns.positions.shape[0]
@@ -96,11 +97,14 @@ def terms(structure: Structure, values: Values, q, z, drive: Drive, unknowns: Un
     if values.masses.shape[0]:
         at_points.append(loads.lumped_masses(values, points[-1], a))
     load = pull((jnp.tensordot(T, unit, axes=1) + weight, weight_nu, *at_points))
-    zeros = [jnp.zeros_like(nu), *(jnp.zeros_like(w) for w in at_points)]
-    B = jax.vmap(lambda w: pull((w, *zeros)))(unit).T
+    B = None
+    if actuation:
+        zeros = [jnp.zeros_like(nu), *(jnp.zeros_like(w) for w in at_points)]
+        B = jax.vmap(lambda w: pull((w, *zeros)))(unit).T
     if structure.continuous:
         continuous = tendons.continuous_actuation(structure, values, q, values.friction)
-        B, load = B + continuous, load + continuous @ T
+        load = load + continuous @ T
+        B = B + continuous if actuation else None
     return Terms(grid, B, tendons.length_changes(structure, values, grid, q), T, load)
 
 
@@ -127,7 +131,7 @@ def residual(structure: Structure, values: Values, measured: tuple[int, ...], x,
     linear in the tensions)."""
     nq = structure.nq
     q, z = x[:nq], x[nq:]
-    t = terms(structure, values, q, z, drive, unknowns, lam)
+    t = terms(structure, values, q, z, drive, unknowns, lam, actuation=with_actuation)
     load = t.load
     E = sc.L_inv @ (values.young_modulus * (values.stiffness() @ q) - load)  # eq. 7
     sel = np.array(measured, int)
