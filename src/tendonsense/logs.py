@@ -48,8 +48,13 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
     done = 0
     history = FrictionHistory(prob.model.values.friction)
     follow = history.active and not prob.located
+    # following friction, μ is a value per row from the first pass on: the rows estimated
+    # again with their states run the same compiled tracker
+    mu = {"friction": np.broadcast_to(np.asarray(prob.model.values.friction, float),
+                                      (len(good), len(robot.tendons)))} if follow else None
     for first, estimates in series_chunks(prob, [samples[k].displacements for k in good],
-                                          [samples[k].tensions for k in good], noise, CHUNK):
+                                          [samples[k].tensions for k in good], noise, CHUNK,
+                                          mu):
         rows = [samples[k] for k in good[first:first + len(estimates)]]
         if follow:
             estimates = _follow_friction(prob, history, rows, estimates, noise)
