@@ -196,3 +196,20 @@ def test_two_processes_compile_a_program_once(tmp_path):
     assert counts == [0, 1], outs
     assert all(float(out.split()[1]) == 9.0 for out, _ in outs)
     assert len(list((tmp_path / "programs").glob("lock_test-*.exe"))) == 1
+
+
+@pytest.mark.parametrize("kept", [True, False])
+def test_programs_compile_with_the_packages_options(tmp_path, monkeypatch, kept):
+    """Every program is compiled with :func:`settings.compiler_options` (a bad value of a
+    known option fails the compile), and an XLA that lacks an option compiles without it."""
+    import jax.numpy as jnp
+    monkeypatch.setenv("TENDONSENSE_CACHE_DIR", str(tmp_path) if kept else "")
+    x = np.linspace(0.0, 1.0, 5)
+    monkeypatch.setattr(compiled, "compiler_options",
+                        lambda: {"xla_cpu_use_fusion_emitters": "not a bool"})
+    with pytest.raises(Exception):
+        compiled.Program(lambda a: jnp.sin(a) * 2, "options_bad", kept)(x)
+    monkeypatch.setattr(compiled, "compiler_options",
+                        lambda: {"xla_cpu_no_such_option_anywhere": True})
+    out = compiled.Program(lambda a: jnp.sin(a) * 2, "options_unknown", kept)(x)
+    np.testing.assert_allclose(out, 2 * np.sin(x), rtol=1e-15)
