@@ -56,6 +56,10 @@ class Carry(NamedTuple):
 
 #: work budget of one sample on the fast path: residual evaluations and exact Jacobians
 MAX_EVALUATIONS, MAX_JACOBIANS = 60, 6
+#: Bates–Watts relative offsets: a least-squares sample is at its minimum below the first; a
+#: step onto such a point that lowers the merit by less than Armijo asks is taken below the
+#: second (the plain path's :data:`~tendonsense.estimation.RELATIVE_OFFSET`)
+OFFSET, RELATIVE_OFFSET = 1e-6, 1e-3
 
 
 def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
@@ -211,20 +215,22 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
             m = 0.5 * (10.0 * jnp.dot(r[:nq], r[:nq]) + jnp.dot(r[nq:], r[nq:]))
             return jnp.where(jnp.isfinite(m), m, jnp.inf)
 
-        def stationary(x, r, s, dx):
-            # equilibrium holds and the Gauss–Newton step in z is below its resolution, or
-            # the lengths are met exactly
+        def stationary(x, J, r, s, dx):
+            # equilibrium holds and the Gauss–Newton step in z is below its resolution, or it
+            # would explain a negligible share of the lengths' misfit (the Bates–Watts
+            # relative offset, as in :mod:`tendonsense.estimation`), or the lengths are met
             small = num.tolerance * (s + floor)
-            z = x[nq:]
+            z, ry = x[nq:], r[nq:]
             return (jnp.linalg.norm(r[:nq]) <= small) & (
                 (jnp.linalg.norm(dx[nq:]) <= step_tol * (jnp.linalg.norm(z) + 1e-6))
-                | (jnp.linalg.norm(r[nq:]) <= small))
+                | (jnp.linalg.norm(J[nq:] @ dx) <= OFFSET * jnp.linalg.norm(ry))
+                | (jnp.linalg.norm(ry) <= small))
 
         J, r, s, rT = linear(guess, d, unknowns, vs)
         dx = gauss_newton(J, r)
         st = dict(x=guess, J=J, r=r, s=s, rT=rT, dx=dx, alpha=jnp.asarray(1.0),
                   evals=jnp.asarray(1), jacs=jnp.asarray(1),
-                  status=jnp.where(stationary(guess, r, s, dx), 1, 0))
+                  status=jnp.where(stationary(guess, J, r, s, dx), 1, 0))
 
         def cond(st):
             return (st["status"] == 0) & (st["evals"] < MAX_EVALUATIONS) & (
@@ -235,14 +241,21 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
             Jt, rt, ts, rTt = linear(xt, d, unknowns, vs)
             # Armijo on the merit, or a step that restores equilibrium (where the lengths'
             # misfit is large, e.g. a force tried at the wrong X, the merit alone can refuse
-            # the step to the constrained minimum)
+            # the step to the constrained minimum), or a small step onto a stationary point
+            # (near a minimum with a misfit left no step lowers the merit by Armijo's share:
+            # a step whose Bates–Watts offset is o moves it by at most (2o + o²))
             rE, rEt = jnp.linalg.norm(st["r"][:nq]), jnp.linalg.norm(rt[:nq])
+            dxt = gauss_newton(Jt, rt)
+            at_minimum = stationary(xt, Jt, rt, ts, dxt)
+            o = st["alpha"] * jnp.linalg.norm(st["J"][nq:] @ st["dx"]) / jnp.maximum(
+                jnp.linalg.norm(st["r"][nq:]), 1e-300)
             accept = (merit(rt) <= (1 - 1e-4 * st["alpha"]) * merit(st["r"])) | (
                 (rEt <= 0.5 * rE) & (rE > num.tolerance * (st["s"] + floor))
-                & jnp.isfinite(merit(rt)))
-            dxt = gauss_newton(Jt, rt)
+                & jnp.isfinite(merit(rt))) | (
+                at_minimum & (o <= RELATIVE_OFFSET)
+                & (merit(rt) <= (1 + 2 * o + o * o + 1e-12) * merit(st["r"])))
             new = dict(x=xt, J=Jt, r=rt, s=ts, rT=rTt, dx=dxt, alpha=jnp.asarray(1.0),
-                       status=jnp.where(stationary(xt, rt, ts, dxt), 1, 0))
+                       status=jnp.where(at_minimum, 1, 0))
             old = dict(st, alpha=st["alpha"] / 2,
                        status=jnp.where(st["alpha"] < 2.0**-20, 2, 0))
             out = jax.tree_util.tree_map(lambda a, b: jnp.where(accept, a, b), new,

@@ -80,11 +80,11 @@ def _follow_friction(prob, history: FrictionHistory, rows: Sequence[Sample],
     tensions = [tendon_vector(robot, r.tensions, "tension") for r in rows]
     given = [{names.index(t): d for t, d in r.sliding.items()} for r in rows]
 
-    def again(js, s):  # the rows js as a series with friction s μ
-        got = []
+    def again(js, s):  # the rows js as a series with friction s μ, from their last estimates
+        got, first = [], out[js[0]]
         for _, chunk in series_chunks(prob, [rows[j].displacements for j in js],
                                       [rows[j].tensions for j in js], noise, CHUNK,
-                                      {"friction": s * mu}):
+                                      {"friction": s * mu}, first.x if first.converged else None):
             got += chunk
         return got
 

@@ -36,7 +36,8 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
     The compiled tracker takes them in chunks of ``chunk`` samples (quasi-Newton for square
     problems, Gauss–Newton SQP for least squares); a sample it cannot converge is solved again
     on its own from the straight rod (load continuation, a bounded budget once an earlier
-    sample has converged); a bad reading (non-finite, negative tension, a tendon pulled in
+    sample has converged), and if the next sample failed too, the scan goes on again from
+    that solution; a bad reading (non-finite, negative tension, a tendon pulled in
     beyond its length) is marked with the reason. ``progress(done, total)`` is called per
     chunk (:func:`series_chunks` hands over each chunk's estimates as it finishes)."""
     n = len(displacements)
@@ -50,9 +51,12 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
 
 def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                   tensions: Sequence[Mapping[str, float]], noise: Noise = Noise(),
-                  chunk: int = 100, values: Mapping[str, object] | None = None):
+                  chunk: int = 100, values: Mapping[str, object] | None = None,
+                  start: np.ndarray | None = None):
     """:func:`estimate_series` as it goes: yields ``(first, estimates)`` for consecutive
-    samples ``first, first + 1, …`` as each chunk is done."""
+    samples ``first, first + 1, …`` as each chunk is done. ``start``: the solution ``x`` of a
+    reading near the first (e.g. the same row's earlier estimate) to warm-start from, instead
+    of solving the first sample from the straight rod."""
     robot, model = prob.robot, prob.model
     n = len(displacements)
     if prob.located:  # sample by sample: X searched first, then followed (and after failures)
@@ -80,32 +84,38 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
     track = tracker(model.structure, prob.measured, prob.n_z, tcols, 4)
     meas = list(prob.measured)
     valid = [k for k in range(n) if out[k] is None]
-    x0, seen_good, done = None, False, 0
-    for start in range(0, len(valid), chunk):
-        idx = valid[start:start + chunk]
+    x0, seen_good, done = start, False, 0
+    for at in range(0, len(valid), chunk):
+        idx = valid[at:at + chunk]
         if x0 is None:  # the first sample solved from the straight rod (square problems)
             x0 = _first_solution(prob, T[idx[0]], Y[idx[0], meas], model.values._replace(
                 **{name: v[idx[0]] for name, v in varied.items()}))
-        # a fixed scan length (padded with the last sample) keeps one compiled tracker
-        rows = list(idx) + [idx[-1]] * (chunk - len(idx))
-        drives = stacked_drives(prob, T[rows], Y[rows][:, meas])
-        tr = jax.device_get(track(jnp.asarray(x0), drives, prob.unknowns, model.values,
-                                  {name: jnp.asarray(v[rows]) for name, v in varied.items()}))
-        for j, k in enumerate(idx):
-            if tr.converged[j]:
-                sigma = band(tr.dx_dm[j, model.nq:, :], len(meas), T[k, list(tcols)], noise)
-                out[k] = SampleEstimate(
-                    tr.x[j, model.nq:], sigma, dict(zip(robot.marker_names, tr.markers[j])),
-                    True, int(tr.iterations[j]), tr.x[j])
-            else:
-                out[k] = _from_result(estimate_problem(
-                    prob, displacements[k], tensions[k], noise,
-                    values=model.values._replace(**{name: v[k] for name, v in varied.items()}),
-                    budget=RESCUE_BUDGET if seen_good else None))
-            seen_good = seen_good or out[k].converged
-        good = [out[k].x for k in idx if out[k].converged]
-        x0 = good[-1] if good else x0
-        end = idx[-1] + 1 if start + chunk < len(valid) else n
+        pos = 0
+        while pos < len(idx):
+            run = idx[pos:]
+            # a fixed scan length (padded with the last sample) keeps one compiled tracker
+            rows = list(run) + [run[-1]] * (chunk - len(run))
+            drives = stacked_drives(prob, T[rows], Y[rows][:, meas])
+            tr = jax.device_get(track(jnp.asarray(x0), drives, prob.unknowns, model.values,
+                                      {name: jnp.asarray(v[rows]) for name, v in varied.items()}))
+            for j, k in enumerate(run):
+                if tr.converged[j]:
+                    sigma = band(tr.dx_dm[j, model.nq:, :], len(meas), T[k, list(tcols)], noise)
+                    out[k] = SampleEstimate(
+                        tr.x[j, model.nq:], sigma, dict(zip(robot.marker_names, tr.markers[j])),
+                        True, int(tr.iterations[j]), tr.x[j])
+                else:
+                    out[k] = _from_result(estimate_problem(
+                        prob, displacements[k], tensions[k], noise,
+                        values=model.values._replace(**{name: v[k] for name, v in varied.items()}),
+                        budget=RESCUE_BUDGET if seen_good else None))
+                seen_good = seen_good or out[k].converged
+                if (not tr.converged[j] and out[k].converged and j + 1 < len(run)
+                        and not tr.converged[j + 1]):
+                    break  # failures that follow a failure: scanned again from its solution
+            pos += j + 1
+            x0 = next((out[k].x for k in reversed(run[:j + 1]) if out[k].converged), x0)
+        end = idx[-1] + 1 if at + chunk < len(valid) else n
         yield done, out[done:end]
         done = end
     if done < n:  # every sample bad
