@@ -67,20 +67,27 @@ def test_default_grid_is_converged(prototype):
         assert np.linalg.norm(coarse.markers[m] - fine.markers[m]) < 5e-5
 
 
+def _noisy_three_tendons(prototype, T, f, seed):
+    """Least squares (eq. 17): every tendon read, with 0.1 mm noise, for a tip force of
+    unknown magnitude; the readings made by forward solves under tensions T (N, 3) and tip
+    forces f (N,)."""
+    from tendonsense.tracking import solve_batch
+    names = prototype.tendon_names
+    truth = solve_batch(prototype, T, [(0.25, np.stack([0 * f, 0 * f, -f], axis=1))])
+    rng = np.random.default_rng(seed)
+    disp = [{t: truth.displacements[t][k] + rng.normal(scale=1e-4) for t in names}
+            for k in range(len(f))]
+    ten = [dict(zip(names, T[k])) for k in range(len(f))]
+    return (problem(prototype, list(names), [PointForceUnknown(0.25, (0, 0, -1))]),
+            disp, ten)
+
+
 def test_least_squares_fast_path_matches_plain_path_on_noisy_readings(prototype):
     """Three tendons read, one unknown (eq. 17 least squares) with length noise: the compiled
     Gauss–Newton SQP series finds the same minimum and band as the plain path."""
-    from tendonsense.tracking import solve_batch
-    names = prototype.tendon_names
     n = 12
     T = np.tile([1.0, 0.5, 0.7], (n, 1)) * np.linspace(1, 2, n)[:, None]
-    f = np.linspace(0.1, 0.3, n)
-    truth = solve_batch(prototype, T, [(0.25, np.stack([0 * f, 0 * f, -f], axis=1))])
-    rng = np.random.default_rng(5)
-    disp = [{t: truth.displacements[t][k] + rng.normal(scale=1e-4) for t in names}
-            for k in range(n)]
-    ten = [dict(zip(names, T[k])) for k in range(n)]
-    prob = problem(prototype, list(names), [PointForceUnknown(0.25, (0, 0, -1))])
+    prob, disp, ten = _noisy_three_tendons(prototype, T, np.linspace(0.1, 0.3, n), 5)
     fast = estimate_series(prob, disp, ten, chunk=8)
     for k in range(0, n, 3):
         plain = estimate_problem(prob, disp[k], ten[k])
@@ -112,18 +119,10 @@ def test_least_squares_scan_converges_noisy_samples_itself(prototype, monkeypatc
     a misfit left, no step lowers the merit by Armijo's share; the scan still takes the step
     onto the stationary point."""
     import tendonsense.tracking as tracking
-    from tendonsense.tracking import solve_batch
-    names = prototype.tendon_names
     n = 40
     s = np.arange(n) / n
     T = np.stack([2.0 - np.cos(2 * np.pi * s), 0.3 + 0 * s, 0.3 + 0 * s], axis=1)
-    f = 0.2 * s
-    truth = solve_batch(prototype, T, [(0.25, np.stack([0 * f, 0 * f, -f], axis=1))])
-    rng = np.random.default_rng(0)
-    disp = [{t: truth.displacements[t][k] + rng.normal(scale=1e-4) for t in names}
-            for k in range(n)]
-    ten = [dict(zip(names, T[k])) for k in range(n)]
-    prob = problem(prototype, list(names), [PointForceUnknown(0.25, (0, 0, -1))])
+    prob, disp, ten = _noisy_three_tendons(prototype, T, 0.2 * s, 0)
     plain_calls = []
     plain = tracking.estimate_problem
     monkeypatch.setattr(tracking, "estimate_problem",
