@@ -25,6 +25,7 @@ from .compiled import Program
 from .kinematics import poses, positions
 from .model import Structure, points_at
 from .problem import Problem
+from .sliding import FIXED_POINT, STATE_TOL, Band, play, pulled
 from .statics import (CACHE_SIZE, Drive, Scaling, admissible, residual, scaling)
 
 
@@ -73,10 +74,11 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
     sel = np.array(measured, int)
 
     def at(values, p, sc=None):  # the values of one sample and their residual scaling
-        if p or sc is None:  # (a Cholesky factorisation and inverse: not per sample)
-            v = values._replace(**p) if p else values
+        v = values._replace(**p) if p else values
+        # (a Cholesky factorisation and inverse of K: not per sample unless K changes)
+        if sc is None or "young_modulus" in p or "poisson_ratio" in p:
             return v, scaling(v, measured)
-        return values, sc
+        return v, sc
 
     def f(x, d, unknowns, vs, with_actuation=False):  # (r, load size[, ∂r/∂T])
         return residual(structure, vs[0], measured, x, d, unknowns, 1.0, vs[1],
@@ -302,6 +304,70 @@ def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
 
     return Program(track, "tracker", (structure, measured, n_z, tension_columns, refine_every,
                                        step_tol))
+
+
+@lru_cache(maxsize=CACHE_SIZE)
+def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
+             tension_columns: tuple[int, ...], refine_every: int = 1):
+    """Compiled ``follow(x0, drives, unknowns, values, given, band) -> (Track, states, bands)``:
+    :func:`tracker` with every tendon's friction following its history
+    (:mod:`tendonsense.sliding`). A sample that keeps every tendon pulled in is solved with
+    friction μ; any other with friction s μ, its state s settled at its own shape by up to
+    :data:`~tendonsense.sliding.FIXED_POINT` solves, each from the last (the first with the
+    turning of the last sample's shape). ``given`` (N, n_t): states set by the log, NaN where
+    the history decides; ``band`` (:class:`~tendonsense.sliding.Band`) the history before the
+    first sample, ``bands`` after each. A failed sample leaves the history as it was."""
+    init, step = _sample_fns(structure, measured, n_z, tension_columns, refine_every)
+    nq = structure.nq
+
+    def follow(x0, drives, unknowns, values, given, band):
+        mu = values.friction
+
+        def solve(carry, d, s):
+            return step(carry, d, {"friction": s * mu}, unknowns, values)
+
+        def kept(ok, after, before):
+            return jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), after, before)
+
+        def sample(c, dg):
+            carry, band = c
+            d, g = dg
+
+            def as_pulled():
+                ones = jnp.ones_like(mu)
+                new, tr = solve(carry, d, ones)
+                return new, tr, ones, kept(tr.converged, pulled(band, d.tensions, g)[1], band)
+
+            def settled():
+                s, _ = play(band, mu, d.tensions,
+                            tendons.turning(structure, values, carry.x[:nq]), g)
+                new, tr = solve(carry, d, s)
+
+                def again(st):
+                    k, new, tr, s, _, _ = st
+                    s_own, after = play(band, mu, d.tensions,
+                                        tendons.turning(structure, values, tr.x[:nq]), g)
+                    failed = ~tr.converged
+                    done = failed | (jnp.max(jnp.abs(s_own - s)) <= STATE_TOL) | (
+                        k >= FIXED_POINT)
+                    new, tr = jax.lax.cond(done, lambda: (new, tr),
+                                           lambda: solve(new, d, s_own))
+                    return (k + 1, new, tr, jnp.where(done, s, s_own),
+                            kept(failed, band, after), done)
+
+                st = jax.lax.while_loop(lambda st: ~st[-1], again,
+                                        (1, new, tr, s, band, jnp.asarray(False)))
+                return st[1:5]
+
+            new, tr, s, band = jax.lax.cond(pulled(band, d.tensions, g)[0], as_pulled, settled)
+            return (new, band), (tr, s, band)
+
+        carry = init(x0, jax.tree_util.tree_map(lambda a: a[0], drives),
+                     {"friction": mu}, unknowns, values)
+        return jax.lax.scan(sample, (carry, band), (drives, given))[1]
+
+    return Program(follow, "follower", (structure, measured, n_z, tension_columns,
+                                         refine_every))
 
 
 @lru_cache(maxsize=CACHE_SIZE)

@@ -21,7 +21,7 @@ from .readings import (ReadingsError, Sample, has_time, located, output_header, 
                        output_rows, parse_header, parse_row, read_readings, with_sliding,
                        write_csv_atomic)
 from .robot import Robot
-from .sliding import FIXED_POINT, STATE_TOL, FrictionHistory, turning_program
+from .sliding import FrictionHistory
 from .tracking import SampleEstimate, series_chunks
 
 #: samples per compiled scan of a file log
@@ -48,16 +48,16 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
     done = 0
     history = FrictionHistory(prob.model.values.friction)
     follow = history.active and not prob.located
-    # following friction, μ is a value per row from the first pass on: the rows estimated
-    # again with their states run the same compiled tracker
-    mu = {"friction": np.broadcast_to(np.asarray(prob.model.values.friction, float),
-                                      (len(good), len(robot.tendons)))} if follow else None
-    for first, estimates in series_chunks(prob, [samples[k].displacements for k in good],
-                                          [samples[k].tensions for k in good], noise, CHUNK,
-                                          mu):
-        rows = [samples[k] for k in good[first:first + len(estimates)]]
+    names = robot.tendon_names
+    given = np.array([[GIVEN[samples[k].sliding.get(t, "")] for t in names] for k in good]
+                     ).reshape(len(good), len(names))
+    for first, estimates in series_chunks(
+            prob, [samples[k].displacements for k in good],
+            [samples[k].tensions for k in good], noise, CHUNK,
+            history=history if follow else None, given=given if follow else None):
         if follow:
-            estimates = _follow_friction(prob, history, rows, estimates, noise)
+            estimates = _stuck_ranges(prob, [samples[k] for k in good[first:first + len(
+                estimates)]], estimates, noise)
         for k, e in zip(good[first:first + len(estimates)], estimates):
             out[k] = e
         end = (good[first + len(estimates)] if first + len(estimates) < len(good)
@@ -68,64 +68,45 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
         yield done, out[done:]
 
 
-def _follow_friction(prob, history: FrictionHistory, rows: Sequence[Sample],
-                     estimates: list[SampleEstimate], noise: Noise) -> list[SampleEstimate]:
-    """A chunk estimated pulled in, again where its tendons' friction history
-    (:class:`~tendonsense.sliding.FrictionHistory`, driven by the tensions and the turning of
-    the estimated shapes) says otherwise; a stuck row gets the range of its magnitudes over the
-    friction band (its stuck tendons pulled in and paid out)."""
-    model, robot = prob.model, prob.robot
-    nq, n, names = model.nq, len(rows), robot.tendon_names
-    mu = np.asarray(model.values.friction, float)
-    tensions = [tendon_vector(robot, r.tensions, "tension") for r in rows]
-    given = [{names.index(t): d for t, d in r.sliding.items()} for r in rows]
+#: a ``sliding_<tendon>`` cell as the state it sets (NaN: the history decides; ``stuck`` keeps
+#: the history's state and asks for the range)
+GIVEN = {"in": 1.0, "out": -1.0, "stuck": np.nan, "": np.nan}
 
-    def again(js, s):  # the rows js as a series with friction s μ, from their last estimates
-        got, first = [], out[js[0]]
-        for _, chunk in series_chunks(prob, [rows[j].displacements for j in js],
-                                      [rows[j].tensions for j in js], noise, CHUNK,
-                                      {"friction": s * mu}, first.x if first.converged else None):
-            got += chunk
-        return got
 
-    h = history.copy()
-    if all(not e.converged or h.pulled(t, g) for e, t, g in zip(estimates, tensions, given)):
-        history.__dict__.update(h.__dict__)  # every row pulled in: today's estimates
-        return estimates
-    out, used = list(estimates), np.ones((n, len(names)))
-    for _ in range(FIXED_POINT):  # the states from the shapes, the shapes from the states
-        h = history.copy()
-        q = np.zeros((CHUNK, nq))
-        q[:n] = [e.x[:nq] if e.converged else np.zeros(nq) for e in out]
-        phi = np.asarray(turning_program(model.structure)(q, model.values))[:n]
-        states = np.array([h.step(tensions[j], phi[j], given[j]) if out[j].converged
-                           else np.where(np.isnan(h.s), 1.0, h.s)  # a failed row: kept
-                           for j in range(n)])
-        redo = [j for j in range(n) if np.any(np.abs(states[j] - used[j]) > STATE_TOL)]
-        if not redo:
-            break
-        for j, e in zip(redo, again(redo, states[redo])):
-            out[j], used[j] = e, states[j]
-    states = used
+def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
+                  noise: Noise) -> list[SampleEstimate]:
+    """Estimates that followed their tendons' friction history
+    (:class:`~tendonsense.sliding.FrictionHistory`) with each tendon's direction, and where one
+    is stuck the range of the magnitudes over its band: the stuck rows estimated again as a
+    series with each stuck tendon pulled in and paid out."""
+    names = prob.robot.tendon_names
+    states = np.array([e.friction_state for e in estimates])
     stuck_of = (np.abs(states) < 1 - EDGE) | np.array(
-        [[given[j].get(k) == "stuck" for k in range(len(names))] for j in range(n)])
-    out = [replace(e, friction_state=states[j], sliding=tuple(
-        "stuck" if stuck_of[j, k] else direction(v) for k, v in enumerate(states[j])))
-        for j, e in enumerate(out)]
-    history.__dict__.update(h.__dict__)
-    stuck = [j for j in range(n) if stuck_of[j].any() and out[j].converged]
-    if stuck:
-        columns = np.flatnonzero(stuck_of[stuck].any(axis=0))
-        corners = []
-        for signs in itertools.product((-1.0, 1.0), repeat=len(columns)):
-            s = states[stuck].copy()
-            for c, sign in zip(columns, signs):
-                s[:, c] = np.where(stuck_of[stuck, c], sign, s[:, c])
-            corners.append([e.magnitudes if e.converged else np.full(prob.n_magnitudes, np.nan)
-                            for e in again(stuck, s)])
-        for i, j in enumerate(stuck):
-            m = np.array([c[i] for c in corners] + [out[j].magnitudes])
-            out[j] = replace(out[j], magnitude_range=np.stack([m.min(0), m.max(0)], axis=1))
+        [[r.sliding.get(t) == "stuck" for t in names] for r in rows])
+    out = [replace(e, sliding=tuple("stuck" if stuck_of[j, k] else direction(v)
+                                    for k, v in enumerate(states[j])))
+           for j, e in enumerate(estimates)]
+    stuck = [j for j in range(len(out)) if stuck_of[j].any() and out[j].converged]
+    if not stuck:
+        return out
+    columns = np.flatnonzero(stuck_of[stuck].any(axis=0))
+    corners = []
+    for signs in itertools.product((-1.0, 1.0), repeat=len(columns)):
+        s = states[stuck].copy()
+        for c, sign in zip(columns, signs):
+            s[:, c] = np.where(stuck_of[stuck, c], sign, s[:, c])
+        got = []
+        for _, chunk in series_chunks(prob, [rows[j].displacements for j in stuck],
+                                      [rows[j].tensions for j in stuck], noise, CHUNK,
+                                      start=out[stuck[0]].x,
+                                      history=FrictionHistory(prob.model.values.friction),
+                                      given=s):
+            got += chunk
+        corners.append([e.magnitudes if e.converged else np.full(prob.n_magnitudes, np.nan)
+                        for e in got])
+    for i, j in enumerate(stuck):
+        m = np.array([c[i] for c in corners] + [out[j].magnitudes])
+        out[j] = replace(out[j], magnitude_range=np.stack([m.min(0), m.max(0)], axis=1))
     return out
 
 

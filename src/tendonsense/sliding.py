@@ -13,9 +13,10 @@ between) signs the Capstan exponent: the model is solved with friction ``s μ``
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import Mapping
+from typing import Mapping, NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .compiled import Program
@@ -92,3 +93,45 @@ class FrictionHistory:
         s = np.where(live, s, 1.0)
         self.s, self.p = np.where(live, s, np.nan), p
         return s
+
+
+class Band(NamedTuple):
+    """:class:`FrictionHistory`'s state as arrays, carried along a compiled scan
+    (:func:`~tendonsense.fastpath.follower`): each tendon's last state (NaN: slack or no
+    reading), last ln T and the turning angles of the last shape."""
+
+    s: jax.Array
+    p: jax.Array
+    phi: jax.Array
+
+    @classmethod
+    def of(cls, history: FrictionHistory) -> "Band":
+        return cls(jnp.asarray(history.s), jnp.asarray(history.p), jnp.asarray(history.phi))
+
+    def into(self, history: FrictionHistory) -> None:
+        history.s, history.p, history.phi = (np.array(a, float) for a in self)
+
+
+def play(band: Band, mu, tensions, phi, given):
+    """:meth:`FrictionHistory.step` in JAX: the state (n_t,) of a reading with ``tensions`` at
+    a shape turning each tendon by ``phi``, and the band after it; ``given`` (n_t,) a state set
+    by the log (+1 in, −1 out), NaN where the history decides."""
+    live = tensions > 0
+    p = jnp.log(jnp.where(live, tensions, 1.0))
+    rise, width = p - band.p, mu * phi
+    wide = width > 0
+    change = jnp.where(wide, rise / jnp.where(wide, width, 1.0), jnp.sign(rise) * jnp.inf)
+    s = jnp.where(jnp.isnan(band.s), 1.0,
+                  jnp.clip(band.s + jnp.nan_to_num(change, nan=0.0), -1.0, 1.0))
+    s = jnp.where(live, jnp.where(jnp.isnan(given), s, given), 1.0)
+    return s, Band(jnp.where(live, s, jnp.nan), p, phi)
+
+
+def pulled(band: Band, tensions, given):
+    """:meth:`FrictionHistory.pulled` in JAX: whether every tendon stays pulled in whatever
+    its band, and the band after the reading if so."""
+    live = tensions > 0
+    p = jnp.log(jnp.where(live, tensions, 1.0))
+    keeps = jnp.all(jnp.isnan(given) | (given == 1.0)) & ~jnp.any(
+        live & ((band.s < 1) | (p < band.p)))
+    return keeps, Band(jnp.where(live, 1.0, jnp.nan), p, band.phi)

@@ -5,7 +5,7 @@ and forward solves in batches over two threads.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
 import jax
@@ -14,7 +14,7 @@ import numpy as np
 
 from .estimation import estimate_problem
 from .fastpath import (MAX_EVALUATIONS, MAX_JACOBIANS, Carry, Track,  # noqa: F401 (API)
-                       stacked_drives, stepper, tracker, unpack_row)
+                       follower, stacked_drives, stepper, tracker, unpack_row)
 from .forward import model_for
 from .inputs import Noise, tendon_vector
 from .model import VALUE_NAMES
@@ -22,6 +22,7 @@ from .online import RESCUE_BUDGET, OnlineEstimator
 from .problem import Problem, band  # noqa: F401 (API)
 from .result import SampleEstimate
 from .robot import Robot
+from .sliding import Band, FrictionHistory
 from .statics import Drive, Unknowns, shape_outputs, solve_system
 
 
@@ -52,13 +53,22 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
 def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                   tensions: Sequence[Mapping[str, float]], noise: Noise = Noise(),
                   chunk: int = 100, values: Mapping[str, object] | None = None,
-                  start: np.ndarray | None = None):
+                  start: np.ndarray | None = None, history: FrictionHistory | None = None,
+                  given: np.ndarray | None = None):
     """:func:`estimate_series` as it goes: yields ``(first, estimates)`` for consecutive
     samples ``first, first + 1, …`` as each chunk is done. ``start``: the solution ``x`` of a
     reading near the first (e.g. the same row's earlier estimate) to warm-start from, instead
-    of solving the first sample from the straight rod."""
+    of solving the first sample from the straight rod.
+
+    ``history``: every tendon's friction follows it along the series (compiled
+    :func:`~tendonsense.fastpath.follower`; it is left as it stands after the last sample) and
+    each estimate carries its ``friction_state``; ``given`` (N, n_t) states the log sets
+    (+1 in, −1 out), NaN where the history decides."""
     robot, model = prob.robot, prob.model
     n = len(displacements)
+    if (prob.located or values) and history is not None:
+        raise ValueError("a friction history is followed with the model's own values and "
+                         "known points only")
     if prob.located:  # sample by sample: X searched first, then followed (and after failures)
         if values:
             raise ValueError("values per sample are not available with located forces")
@@ -81,7 +91,12 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
         except ValueError as exc:
             out[k] = SampleEstimate.failed(prob, f"bad value: {exc}")
     tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.any(T != 0, axis=0)))))
-    track = tracker(model.structure, prob.measured, prob.n_z, tcols, 4)
+    if history is None:
+        track = tracker(model.structure, prob.measured, prob.n_z, tcols, 4)
+    else:
+        follow = follower(model.structure, prob.measured, prob.n_z, tcols, 4)
+        given = np.full((n, len(robot.tendons)), np.nan) if given is None else given
+        mu = np.asarray(model.values.friction, float)
     meas = list(prob.measured)
     valid = [k for k in range(n) if out[k] is None]
     x0, seen_good, done = start, False, 0
@@ -96,8 +111,14 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
             # a fixed scan length (padded with the last sample) keeps one compiled tracker
             rows = list(run) + [run[-1]] * (chunk - len(run))
             drives = stacked_drives(prob, T[rows], Y[rows][:, meas])
-            tr = jax.device_get(track(jnp.asarray(x0), drives, prob.unknowns, model.values,
-                                      {name: jnp.asarray(v[rows]) for name, v in varied.items()}))
+            if history is None:
+                tr = jax.device_get(track(
+                    jnp.asarray(x0), drives, prob.unknowns, model.values,
+                    {name: jnp.asarray(v[rows]) for name, v in varied.items()}))
+            else:
+                tr, states, bands = jax.device_get(follow(
+                    jnp.asarray(x0), drives, prob.unknowns, model.values,
+                    jnp.asarray(given[rows]), Band.of(history)))
             for j, k in enumerate(run):
                 if tr.converged[j]:
                     sigma = band(tr.dx_dm[j, model.nq:, :], len(meas), T[k, list(tcols)], noise)
@@ -105,10 +126,14 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                         tr.x[j, model.nq:], sigma, dict(zip(robot.marker_names, tr.markers[j])),
                         True, int(tr.iterations[j]), tr.x[j])
                 else:
+                    v = model.values._replace(**{name: a[k] for name, a in varied.items()})
                     out[k] = _from_result(estimate_problem(
                         prob, displacements[k], tensions[k], noise,
-                        values=model.values._replace(**{name: v[k] for name, v in varied.items()}),
+                        values=v if history is None else v._replace(friction=states[j] * mu),
                         budget=RESCUE_BUDGET if seen_good else None))
+                if history is not None:
+                    out[k] = replace(out[k], friction_state=states[j])
+                    Band(*(a[j] for a in bands)).into(history)
                 seen_good = seen_good or out[k].converged
                 if (not tr.converged[j] and out[k].converged and j + 1 < len(run)
                         and not tr.converged[j + 1]):
