@@ -326,40 +326,35 @@ def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
         def solve(carry, d, s):
             return step(carry, d, {"friction": s * mu}, unknowns, values)
 
-        def kept(ok, after, before):
-            return jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), after, before)
+        def kept(failed, before, after):
+            return jax.tree_util.tree_map(lambda a, b: jnp.where(failed, a, b), before, after)
 
         def sample(c, dg):
             carry, band = c
             d, g = dg
+            keeps, after_pull = pulled(band, d.tensions, g)
+            ones = jnp.ones_like(mu)
 
-            def as_pulled():
-                ones = jnp.ones_like(mu)
-                new, tr = solve(carry, d, ones)
-                return new, tr, ones, kept(tr.converged, pulled(band, d.tensions, g)[1], band)
+            def state(x):  # the state at the shape x and the history after it
+                return jax.lax.cond(keeps, lambda: (ones, after_pull), lambda: play(
+                    band, mu, d.tensions, tendons.turning(structure, values, x[:nq]), g))
 
-            def settled():
-                s, _ = play(band, mu, d.tensions,
-                            tendons.turning(structure, values, carry.x[:nq]), g)
-                new, tr = solve(carry, d, s)
+            def again(st):
+                # one solve an iteration (one copy of the step in the program): the first
+                # with the state at the last sample's shape, then at its own until it settles
+                k, new, tr, s, after, _ = st
+                s_own, after_own = state(jnp.where(k == 0, carry.x, tr.x))
+                failed = (k > 0) & ~tr.converged
+                done = (k > 0) & (failed | keeps | (jnp.max(jnp.abs(s_own - s)) <= STATE_TOL)
+                                  | (k >= FIXED_POINT))
+                new, tr = jax.lax.cond(done, lambda: (new, tr), lambda: solve(new, d, s_own))
+                return (k + 1, new, tr, jnp.where(done, s, s_own),
+                        kept(failed, band, after_own), done)
 
-                def again(st):
-                    k, new, tr, s, _, _ = st
-                    s_own, after = play(band, mu, d.tensions,
-                                        tendons.turning(structure, values, tr.x[:nq]), g)
-                    failed = ~tr.converged
-                    done = failed | (jnp.max(jnp.abs(s_own - s)) <= STATE_TOL) | (
-                        k >= FIXED_POINT)
-                    new, tr = jax.lax.cond(done, lambda: (new, tr),
-                                           lambda: solve(new, d, s_own))
-                    return (k + 1, new, tr, jnp.where(done, s, s_own),
-                            kept(failed, band, after), done)
-
-                st = jax.lax.while_loop(lambda st: ~st[-1], again,
-                                        (1, new, tr, s, band, jnp.asarray(False)))
-                return st[1:5]
-
-            new, tr, s, band = jax.lax.cond(pulled(band, d.tensions, g)[0], as_pulled, settled)
+            blank = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype),
+                                           jax.eval_shape(solve, carry, d, ones)[1])
+            _, new, tr, s, band, _ = jax.lax.while_loop(
+                lambda st: ~st[-1], again, (0, carry, blank, ones, band, jnp.asarray(False)))
             return (new, band), (tr, s, band)
 
         carry = init(x0, jax.tree_util.tree_map(lambda a: a[0], drives),

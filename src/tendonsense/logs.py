@@ -15,7 +15,7 @@ import numpy as np
 
 from .estimation import Noise, Unknown, problem
 from .filtering import WALK
-from .inputs import EDGE, check_unknowns, direction, tendon_vector
+from .inputs import EDGE, check_unknowns, direction
 from .online import OnlineEstimator
 from .readings import (ReadingsError, Sample, has_time, located, output_header, output_row,
                        output_rows, parse_header, parse_row, read_readings, with_sliding,
