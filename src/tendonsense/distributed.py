@@ -30,7 +30,7 @@ from .readings import log_outputs
 from .result import SampleEstimate
 from .robot import Robot
 from .settings import cache_dir
-from .tracking import BatchResult, batch_inputs, varied_values
+from .tracking import BatchResult, batch_inputs, principal_order, varied_values
 from .tracking import estimate_batch as estimate_here
 from .tracking import solve_batch as solve_local
 
@@ -145,9 +145,9 @@ def solve_batch(client, robot: Robot, tensions, point_forces: Sequence = (),
                 values: Mapping[str, object] | None = None, task_size: int = TASK_SIZE,
                 progress: Progress | None = None) -> BatchResult:
     """:func:`tendonsense.tracking.solve_batch` over a cluster (``client``; ``None``: this
-    process): the same arguments, checked here; the batch cut into chunks of ``task_size``
-    samples (:func:`task_chunks`), each chunk a task (:func:`solve_chunk`), the results put
-    back in the input order. ``progress(done, total)`` is called per chunk.
+    process): the same arguments, checked here; the batch ordered along its first principal
+    direction and cut into chunks of ``task_size`` samples (:func:`task_chunks`), each chunk a
+    task (:func:`solve_chunk`), the results put back in the input order. ``progress(done, total)`` is called per chunk.
 
     Each chunk is solved on its own (its samples warm-started from each other, the first
     from the straight rod), so the result is exactly that of :func:`solve_chunk` on each
@@ -164,19 +164,29 @@ def solve_batch(client, robot: Robot, tensions, point_forces: Sequence = (),
     n = T.shape[0]
     if n == 0:
         raise ValueError("batch: no samples")
-    chunks = task_chunks(n, task_size)
+    # neighbours along the batch's first principal direction share a task, so that each
+    # warm-starts the next as in one process
+    order = principal_order(np.concatenate(
+        [T, X, F.reshape(n, -1), *(v.reshape(n, -1) for v in varied.values())], axis=1))
+    chunks = [order[c] for c in task_chunks(n, task_size)]
     tasks = [(robot, T[c], X[c], F[c], {k: np.ascontiguousarray(v[c]) for k, v in varied.items()})
              for c in chunks]
     parts = _run(client, solve_chunk, tasks, progress)
     for part in parts:
         if isinstance(part, Exception):
             raise part
+
+    def back(pieces):  # the chunks' rows in the input order
+        out = np.empty((n, *pieces[0].shape[1:]), pieces[0].dtype)
+        for c, piece in zip(chunks, pieces):
+            out[c] = piece
+        return out
+
     return BatchResult(
-        np.concatenate([p.q for p in parts]),
-        {m: np.concatenate([p.markers[m] for p in parts]) for m in robot.marker_names},
-        {t: np.concatenate([p.displacements[t] for p in parts]) for t in robot.tendon_names},
-        np.concatenate([p.converged for p in parts]),
-        np.concatenate([p.iterations for p in parts]))
+        back([p.q for p in parts]),
+        {m: back([p.markers[m] for p in parts]) for m in robot.marker_names},
+        {t: back([p.displacements[t] for p in parts]) for t in robot.tendon_names},
+        back([p.converged for p in parts]), back([p.iterations for p in parts]))
 
 
 def estimate_chunk(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],

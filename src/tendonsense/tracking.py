@@ -168,7 +168,7 @@ def _from_result(r) -> SampleEstimate:
                           np.array([r.extra["location_sigma"][k] for k in located]))
 
 
-def _principal_order(m: np.ndarray) -> np.ndarray:
+def principal_order(m: np.ndarray) -> np.ndarray:
     """Rows of ``m`` ordered along their first principal direction (standardised columns), so
     that neighbours warm-start each other."""
     if m.shape[0] < 2:
@@ -196,7 +196,7 @@ def estimate_batch(prob: Problem, displacements: Sequence[Mapping[str, float]],
                                   tendon_vector(robot, t, "tension")])
                   for y, t in zip(displacements, tensions)]).reshape(n, -1)
     m = np.concatenate([m, *(v.reshape(n, -1) for v in varied.values())], axis=1)
-    runs = [r for r in np.array_split(_principal_order(m), max(1, workers)) if r.size]
+    runs = [r for r in np.array_split(principal_order(m), max(1, workers)) if r.size]
     done = [0] * len(runs)
 
     def solve_run(i):
@@ -262,7 +262,7 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     track = tracker(structure, (), 0, tcols, 4)
     features = np.concatenate([T, X, F.reshape(n, -1), *(v.reshape(n, -1)
                                                           for v in varied.values())], axis=1)
-    runs = [r for r in np.array_split(_principal_order(features), max(1, workers)) if r.size]
+    runs = [r for r in np.array_split(principal_order(features), max(1, workers)) if r.size]
     q, mk = np.zeros((n, structure.nq)), np.zeros((n, len(robot.markers), 3))
     y, conv, its = np.zeros((n, n_t)), np.zeros(n, bool), np.zeros(n, int)
 
