@@ -77,16 +77,20 @@ def estimates(robot, cols, dynamic):
     from tendonsense.estimation import problem
     from tendonsense.filtering import MotionFilter
     from tendonsense.inputs import Noise, PointForceUnknown
-    from tendonsense.tracking import estimate_series
-    prob = problem(robot, ["t1"], [PointForceUnknown(X, (0, 0, -1))])
+    from tendonsense.logs import estimate_readings
+    from tendonsense.readings import Sample
+    unknowns = [PointForceUnknown(X, (0, 0, -1))]
+    prob = problem(robot, ["t1"], unknowns)
     noise = Noise(1e-4, 0.01)
     disp = [{"t1": v} for v in cols["displacement_t1"]]
     ten = [{n: cols[f"tension_{n}"][k] for n in robot.tendon_names} for k in range(len(disp))]
     if dynamic:
         f = MotionFilter(prob, noise)
         out = [f.update(d, T, t) for d, T, t in zip(disp, ten, cols["time"])]
-    else:
-        out = estimate_series(prob, disp, ten, noise)
+    else:  # estimate --readings: friction following each tendon's history
+        rows = [Sample(k + 1, t, T, d, {})
+                for k, (d, T, t) in enumerate(zip(disp, ten, cols["time"]))]
+        out = estimate_readings(robot, ["t1"], rows, unknowns, noise=noise)
     return np.array([e.magnitudes[0] if e.converged else np.nan for e in out])
 
 

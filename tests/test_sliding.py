@@ -12,10 +12,11 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import PROTOTYPE
+from conftest import PROTOTYPE, ROOT
 from cosserat_bvp import CosseratBVP
 from tendonsense.estimation import PointForceUnknown, estimate
 from tendonsense.forward import forward_kinematics, solve
+from tendonsense.robot import load_robot
 
 RICH = (("torsion", 4), ("bending_y", 8), ("bending_z", 8), ("elongation", 6),
         ("shear_y", 6), ("shear_z", 6))
@@ -272,3 +273,34 @@ def test_cli_log_columns(prototype, tmp_path):
     low, high = float(rows[3]["magnitude_low_1"]), float(rows[3]["magnitude_high_1"])
     assert low <= float(rows[3]["magnitude_1"]) <= high and low == pytest.approx(0.2, rel=1e-6)
     assert float(rows[1]["magnitude_1"]) == pytest.approx(high, rel=1e-6) and high > 0.3
+
+
+def test_simulate_follows_the_friction_history():
+    """Pull, hold and release simulated as the tension goes (``follow``, the damped rod
+    without inertia, τ = 1 ms, slow enough to be nearly static): its friction states and
+    length changes are those of forward solves that follow the play operator sample by sample
+    (made independently of the integrator); with ``in`` they are the static solves', and the
+    release then reads several millimetres differently."""
+    from tendonsense.simulation import simulate
+    robot = load_robot(ROOT / "examples" / "paper_prototype_damped.toml")
+    robot = robot.replace(rod=dataclasses.replace(
+        robot.rod, damping=1e-3 * robot.rod.young_modulus / 3))
+    W, ramp = 0.5, ([0.0, 2.0, 2.5, 5.0], [1.0, 4.0, 4.0, 1.2])
+    load = [(robot.rod.length, (0.0, 0.0, -W))]
+    q0 = solve(robot, {"t1": 1.0}, load).q
+    run = lambda **kw: simulate(robot, {"t1": ramp}, load, duration=6.0,  # noqa: E731
+                                output_dt=0.1, inertia=False, q0=q0, **kw)
+    follow, pulled = run(), run(sliding={"t1": "in"})
+    assert follow.ok and pulled.ok
+    rows, states = _history_log(robot, follow.tensions["t1"], W)
+    s = follow.friction_state["t1"]
+    np.testing.assert_allclose(s, states, atol=0.01)
+    assert (s < -0.999).sum() >= 8 and ((s > -0.9) & (s < 0.9)).sum() >= 4
+    y = np.array([r.displacements["t1"] for r in rows])
+    assert np.abs(follow.displacements["t1"] - y).max() < 5e-5
+    static = [solve(robot, {"t1": t}, load).displacements["t1"] for t in pulled.tensions["t1"]]
+    assert np.abs(pulled.displacements["t1"] - static).max() < 1e-5
+    assert np.all(pulled.friction_state["t1"] == 1.0)
+    assert np.abs(follow.displacements["t1"] - pulled.displacements["t1"]).max() > 3e-3
+    with pytest.raises(ValueError, match="sliding t1='stuck'"):
+        run(sliding={"t1": "stuck"})

@@ -68,13 +68,18 @@ def _assignment(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(f"{name}: not a number: {value!r}") from None
 
 
-def _direction(text: str):
+def _direction(text: str, allowed=inputs.SLIDING):
     name, sep, value = text.partition("=")
     if not sep or not name:
-        raise argparse.ArgumentTypeError(f"expected NAME=in|out|stuck, got {text!r}")
-    if value not in inputs.SLIDING:
-        raise argparse.ArgumentTypeError(f"{name}={value!r}: the direction is in, out or stuck")
+        raise argparse.ArgumentTypeError(f"expected NAME={'|'.join(allowed)}, got {text!r}")
+    if value not in allowed:
+        raise argparse.ArgumentTypeError(f"{name}={value!r}: the direction is "
+                                         f"{', '.join(allowed[:-1])} or {allowed[-1]}")
     return name, value
+
+
+def _simulated_direction(text: str):
+    return _direction(text, inputs.SIMULATED_SLIDING)
 
 
 SLIDING_HELP = ("the direction tendon NAME slides through its guides, which sets the sense of "
@@ -346,6 +351,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-inertia", action="store_true",
                    help="leave out inertia (the quasi-static limit with damping; needs "
                         "[rod] damping > 0)")
+    p.add_argument("--sliding", action="append", default=[], type=_simulated_direction,
+                   metavar="NAME=in|out|follow",
+                   help="the sense of tendon NAME's friction: follow (the default, as the "
+                        "estimators take it: pulled in while its tension rises, stuck when it "
+                        "turns, paid out once it has fallen through the friction band), in "
+                        "(always pulled in, the tension fading toward the anchor: eq. 10 as "
+                        "written) or out (always paid out); once per tendon")
     p.add_argument("--noise-length", type=float, default=0.0, metavar="M",
                    help="read-out noise of the length changes, standard deviation in m "
                         "(default 0)")
@@ -517,6 +529,8 @@ def _check_simulate(args, robot):
     from .readings import read_tension_schedule
     args.tension = _once(args.tension, "--tension")
     inputs.tensions(robot, args.tension)
+    args.sliding = _once(args.sliding, "--sliding")
+    inputs.sliding(robot, args.sliding, inputs.SIMULATED_SLIDING)
     inputs.check_point_forces(robot, _point_forces(args))
     schedule = read_tension_schedule(args.tensions, robot) if args.tensions else {}
     both = [n for n in schedule if n in args.tension]
@@ -1147,10 +1161,11 @@ def _mm(v):
     return "—" if v is None else f"{v * 1e3:.3f} mm"
 
 
-def _parameter_text(k: str, v: float) -> str:
+def _parameter_text(k: str, v: float, sigma: float | None = None) -> str:
     label, unit = PARAMETER_WORDS.get(k, (f"friction coefficient μ of tendon "
                                           f"{k.partition('_')[2]}", ""))
-    return f"{label} ({k}): {v:.6g}{unit}"
+    band = "" if sigma is None else f" ± {sigma:.2g}{unit} (1 σ)"
+    return f"{label} ({k}): {v:.6g}{unit}{band}"
 
 
 def _fitted_header(args, robot, fit) -> list[str]:
@@ -1199,7 +1214,7 @@ def _identify(args, robot) -> bool:
           f"{'converged' if fit.converged else 'NOT CONVERGED'} in {fit.iterations} "
           f"iterations")
     for k, v in fit.parameters.items():
-        print(f"  {_parameter_text(k, v)}")
+        print(f"  {_parameter_text(k, v, fit.sigma.get(k))}")
     if fit.marker_rmse is not None:
         print(f"  marker RMSE: {_mm(fit.marker_rmse)} after the fit, "
               f"{_mm(fit.initial_marker_rmse)} with the robot file's values")
@@ -1226,7 +1241,7 @@ def _simulate(args, robot) -> bool:
     from .simulation import simulate
     sim = simulate(robot, args.schedule, _point_forces(args), duration=args.duration,
                    output_dt=args.output_dt, max_step=args.max_step,
-                   inertia=not args.no_inertia)
+                   inertia=not args.no_inertia, sliding=args.sliding)
     cols = sim.readings(args.noise_length, args.noise_tension, args.seed)
     write_csv_atomic(args.log, list(cols), np.column_stack(list(cols.values())).tolist())
     if args.plot:
@@ -1236,6 +1251,8 @@ def _simulate(args, robot) -> bool:
         print(json.dumps({"time": sim.time.tolist(),
                           "markers": {m: p.tolist() for m, p in sim.markers.items()},
                           "displacements": {n: y.tolist() for n, y in sim.displacements.items()},
+                          "friction_state": {n: v.tolist()
+                                             for n, v in sim.friction_state.items()},
                           "converged": sim.ok}))
     else:
         tip = robot.marker_names[-1] if robot.marker_names else None
@@ -1245,6 +1262,11 @@ def _simulate(args, robot) -> bool:
             print(f"marker {tip} at the end: {_vector(sim.markers[tip][-1])} m")
         for n, y in sim.displacements.items():
             print(f"tendon {n}: length change at the end {y[-1] * 1e3:+.3f} mm")
+        for n, s in sim.friction_state.items():
+            pulled, out = np.mean(s >= 1 - inputs.EDGE), np.mean(s <= -1 + inputs.EDGE)
+            if pulled < 1:
+                print(f"tendon {n}: friction by the samples: pulled in {pulled:.0%}, stuck "
+                      f"{1 - pulled - out:.0%}, paid out {out:.0%}")
         if not sim.ok:
             print(f"NOT CONVERGED at {int(np.sum(~sim.converged))} of {sim.time.size} samples "
                   f"(from t = {sim.time[np.argmin(sim.converged)]:g} s)")

@@ -13,6 +13,11 @@ of a slender rod decay instead of ringing; both stages share one iteration matri
 solved by Newton's method with the exact Jacobian and an Armijo line search. A step whose
 Newton iteration fails is retried in halves. Without inertia (the quasi-static limit with
 damping) the state is q alone: ``D q̇ = B T + F − K q``.
+
+Friction direction: each tendon is pulled in, paid out, or follows its tension history (the
+play operator of :mod:`tendonsense.sliding`, carried in the state): within a step its state
+follows the tension at the turning angles of the step's start, and takes the new shape's
+angles once the step is accepted.
 """
 
 from __future__ import annotations
@@ -28,8 +33,9 @@ from .compiled import Program
 from .kinematics import configuration, poses, positions
 from .lie import ad_apply, skew
 from .model import Structure, Values, points_at
+from .sliding import Band, play
 from .statics import CACHE_SIZE, Drive, Unknowns, admissible, scaling, terms
-from .tendons import length_changes
+from .tendons import length_changes, turning
 
 _Z = np.sqrt(3.0) / 6.0
 GAMMA = 2.0 - np.sqrt(2.0)
@@ -106,7 +112,8 @@ def energy(structure: Structure, values: Values, q, v):
 class Schedule(NamedTuple):
     """Known inputs over time, linear between the rows and held after the last: tensions
     ``(k, n_t)`` at ``tension_times``; point forces ``(k', n_p, 3)`` (global) at
-    ``force_times`` acting at ``load_X``; gravity constant."""
+    ``force_times`` acting at ``load_X``; gravity constant; every tendon's friction direction
+    (n_t,): +1 pulled in, −1 paid out, NaN its tension history decides."""
 
     tension_times: jax.Array
     tensions: jax.Array
@@ -114,6 +121,7 @@ class Schedule(NamedTuple):
     forces: jax.Array
     load_X: jax.Array
     gravity: jax.Array
+    sliding: jax.Array
 
     def drive(self, t) -> Drive:
         T = jax.vmap(lambda col: jnp.interp(t, self.tension_times, col), 1)(self.tensions)
@@ -122,6 +130,12 @@ class Schedule(NamedTuple):
         return Drive(T, F.reshape(self.forces.shape[1:]), self.load_X, self.gravity,
                      jnp.zeros(0))
 
+    def friction(self, band: Band, mu, t):
+        """Every tendon's signed friction coefficient at time t from the state ``band``
+        (the play operator at the band's turning angles), and its friction state."""
+        s, _ = play(band, mu, self.drive(t).tensions, band.phi, self.sliding)
+        return s * mu, s
+
 
 def _load(structure, values, q, drive):
     unknowns = Unknowns.none(structure.n_tendons, drive.load_X.shape[0])
@@ -129,33 +143,36 @@ def _load(structure, values, q, drive):
 
 
 class State(NamedTuple):
-    """The integrator's state: time, q, v (q̇) and a (q̈; without inertia q̇ again), and the
-    LU factors of the last iteration matrix (reused while Newton converges fast)."""
+    """The integrator's state: time, q, v (q̇) and a (q̈; without inertia q̇ again), the
+    LU factors of the last iteration matrix (reused while Newton converges fast) and the
+    tendons' friction history."""
 
     t: jax.Array
     q: jax.Array
     v: jax.Array
     a: jax.Array
     lu: tuple
+    band: Band
 
 
 def _equations(structure: Structure, values: Values, inertia: bool):
-    """``residual(q, base_q, base_v, κh, drive) -> (r, v, a)``: the stage equation
+    """``residual(q, base_q, base_v, κh, drive, μ) -> (r, v, a)``: the stage equation
     ``y = base + κh ẏ(y)`` with q the unknown, in force units (v and a follow from q), and
-    ``rate(q, v, drive)``: q̈ at a state (q̇ without inertia)."""
+    ``rate(q, v, drive, μ)``: q̈ at a state (q̇ without inertia); μ the tendons' signed
+    friction coefficients."""
     K = values.young_modulus * values.stiffness()
     D = values.damping_matrix()
 
-    def residual(q, base_q, base_v, kh, drive):
+    def residual(q, base_q, base_v, kh, drive, mu):
         v = (q - base_q) / kh
-        load = _load(structure, values, q, drive)
+        load = _load(structure, values._replace(friction=mu), q, drive)
         if not inertia:
             return D @ v + K @ q - load, v, v
         a = (v - base_v) / kh
         return inertial_force(structure, values, q, v, a) + D @ v + K @ q - load, v, a
 
-    def rate(q, v, drive):
-        f = _load(structure, values, q, drive) - K @ q
+    def rate(q, v, drive, mu):
+        f = _load(structure, values._replace(friction=mu), q, drive) - K @ q
         if not inertia:
             return jnp.linalg.solve(D, f)
         f = f - D @ v - inertial_force(structure, values, q, v, jnp.zeros_like(v))
@@ -184,7 +201,8 @@ def integrator(structure: Structure, inertia: bool):
     ``h_max`` from ``state`` (a step that fails retried in halves) past every output time in
     ``times``, and at each output time (cubic Hermite interpolation of q and q̇ between the
     steps around it, third order) q, q̇, the marker positions, the tendon length changes,
-    whether every step converged and whether the strain is admissible.
+    whether every step converged, whether the strain is admissible and the tendons' friction
+    states (+1 pulled in, −1 paid out, stuck between).
 
     Each stage is solved by Newton's method on q with the exact Jacobian, factored once and
     reused over iterations, stages and steps while the residual falls at least tenfold per
@@ -197,12 +215,12 @@ def integrator(structure: Structure, inertia: bool):
         sc = scaling(values, ())
         floor = values.energy_floor * jnp.sqrt(values.young_modulus)
 
-        def scaled(q, base_q, base_v, kh, t):
-            r, v, a = residual(q, base_q, base_v, kh, schedule.drive(t))
+        def scaled(q, base_q, base_v, kh, t, mu):
+            r, v, a = residual(q, base_q, base_v, kh, schedule.drive(t), mu)
             return sc.L_inv @ r, (v, a)
 
-        def factor(q, base_q, base_v, kh, t):
-            J = jax.jacfwd(lambda q: scaled(q, base_q, base_v, kh, t)[0])(q)
+        def factor(q, base_q, base_v, kh, t, mu):
+            J = jax.jacfwd(lambda q: scaled(q, base_q, base_v, kh, t, mu)[0])(q)
             return jax.scipy.linalg.lu_factor(J)
 
         def size(q):
@@ -218,9 +236,9 @@ def integrator(structure: Structure, inertia: bool):
             m = 0.5 * r @ r
             return jnp.where(jnp.isfinite(m), m, jnp.inf)
 
-        def stage(q0, base_q, base_v, kh, t, lu):
+        def stage(q0, base_q, base_v, kh, t, mu, lu):
             """Newton on ``y = base + κh ẏ(y)`` from q0; (q, v, a, converged, LU)."""
-            args = (base_q, base_v, kh, t)
+            args = (base_q, base_v, kh, t, mu)
 
             def body(st):
                 q, r, dq, alpha, fresh, lu, it, _, _ = st
@@ -265,12 +283,15 @@ def integrator(structure: Structure, inertia: bool):
                                   + (0.5 * (GAMMA * h) ** 2 * s.a if inertia else 0.0),
                                   q1 + (1 - GAMMA) * h * v1)
                 t = s.t + jnp.where(first, GAMMA, 1.0) * h
-                q, v, a, good, lu = stage(guess, base_q, base_v, kh, t, lu)
+                mu, _ = schedule.friction(s.band, values.friction, t)
+                q, v, a, good, lu = stage(guess, base_q, base_v, kh, t, mu, lu)
                 return (q, v, lu, ok & good), a
 
             (q, v, lu, ok), a = jax.lax.scan(one, (s.q, s.v, s.lu, jnp.asarray(True)),
                                              jnp.arange(2))
-            return State(s.t + h, q, v, a[1], lu), ok
+            _, band = play(s.band, values.friction, schedule.drive(s.t + h).tensions,
+                           turning(structure, values, q), schedule.sliding)
+            return State(s.t + h, q, v, a[1], lu, band), ok
 
         def advance(c, t_end):
             """Steps of ``h_max`` (a failing one retried in halves) until the newest state
@@ -302,9 +323,10 @@ def integrator(structure: Structure, inertia: bool):
             (s, prev), ok = advance(c, t_end)
             q, v = _hermite(prev, s, t_end)
             grid, mk = poses(values, q, points_at(structure, values, values.marker_X))
+            _, state = schedule.friction(prev.band, values.friction, t_end)
             out = (q, v, positions(mk, values.marker_offsets),
-                   length_changes(structure, values, grid, q), ok & jnp.all(jnp.isfinite(q)),
-                   admissible(values, q))
+                   length_changes(structure, values, grid, q),
+                   ok & jnp.all(jnp.isfinite(q)), admissible(values, q), state)
             return (s, prev), out
 
         (state, _), out = jax.lax.scan(sample, (state, state), times)
@@ -312,15 +334,20 @@ def integrator(structure: Structure, inertia: bool):
 
     def start(q, v, t, h, schedule: Schedule, values: Values):
         """The state at ``(q, v)`` at time t with its acceleration (without inertia v is not
-        free: v and a are both the q̇ of the damped motion) and the iteration matrix of a step
-        h from there."""
+        free: v and a are both the q̇ of the damped motion), the iteration matrix of a step
+        h from there, and every tendon's first reading ahead (pulled in unless told)."""
         scaled, factor, _, rate = parts(values, schedule)
-        a = rate(q, v, schedule.drive(t))
+        n_t = values.friction.shape[0]
+        band = Band(jnp.full(n_t, jnp.nan), jnp.zeros(n_t), turning(structure, values, q))
+        _, band = play(band, values.friction, schedule.drive(t).tensions, band.phi,
+                       schedule.sliding)
+        mu, _ = schedule.friction(band, values.friction, t)
+        a = rate(q, v, schedule.drive(t), mu)
         v = v if inertia else a
         kh = _KAPPA * h
         qd = v if inertia else a
-        lu = factor(q + 2 * kh * qd, q + kh * qd, v + kh * a, kh, t + GAMMA * h)
-        return State(t, q, v, a, lu)
+        lu = factor(q + 2 * kh * qd, q + kh * qd, v + kh * a, kh, t + GAMMA * h, mu)
+        return State(t, q, v, a, lu, band)
 
     key = (structure, inertia)
     return Program(start, "dynamics_start", key), Program(run, "dynamics", key)

@@ -17,10 +17,15 @@ with as many measured tendons as unknowns, the filter settles on the quasi-stati
 Inertia is left out: at the speeds of a tendon-driven rod it moves the estimate far less than
 the sensor noise, except in the ringing after a sudden change of tension (see the manual's
 motion page). The first sample is taken at rest: its quasi-static estimate starts the filter.
+
+Friction follows each tendon's history (:class:`~tendonsense.sliding.FrictionHistory`): the
+state of a sample comes from its tension and the turning angles of the last estimated shape,
+and signs the Capstan exponent of its step (one step a sample: no iteration on the state).
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import lru_cache
 from typing import Mapping, NamedTuple
 
@@ -30,13 +35,14 @@ import numpy as np
 
 from .compiled import Program
 from .estimation import estimate_problem
-from .inputs import Noise
+from .inputs import Noise, direction, sliding as check_sliding
 from .kinematics import poses, positions
 from .model import PointSet, Structure, Values, points_at
 from .problem import Problem, _jacobians_fn
 from .result import SampleEstimate
+from .sliding import FrictionHistory
 from .statics import CACHE_SIZE, Drive, Unknowns, admissible, terms
-from .tendons import length_changes
+from .tendons import length_changes, turning
 
 #: the time the robot is taken to have been at rest before the first sample, s
 REST = 1e6
@@ -49,6 +55,10 @@ COLUMNS = 4
 
 #: failed samples in a row after which the filter starts again from a quasi-static estimate
 RESTART = 5
+
+#: the friction history's margin in ln T, in units of the tension's read-out noise: a
+#: tendon's friction turns only on a change of tension the noise cannot make
+MARGIN = 3.0
 
 
 class FilterState(NamedTuple):
@@ -77,8 +87,9 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int) -> Pr
     """The compiled ``step(state, t, drive, unknowns, values, tuning, markers) -> (state, row)``
     (``markers``: the markers' :class:`~tendonsense.model.PointSet`, made once): one
     predict and update at time t with the tensions and measured length changes of ``drive``;
-    ``row`` is ``(x, σ_z, markers, ok)`` (ok: finite, later than the state and in the
-    model's strain range). A sample that is not ok returns the state unchanged.
+    ``row`` is ``(x, σ_z, markers, φ, ok)`` (φ the tendons' turning angles at the estimate;
+    ok: finite, later than the state and in the model's strain range). A sample that is not
+    ok returns the state unchanged.
 
     The prediction is one linearly implicit Euler step (the implicit Euler equation
     linearised at the last estimate; no iteration, so that every sample's work is fixed)."""
@@ -138,7 +149,8 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int) -> Pr
         new = FilterState(t, x, P, E_q, y_q, (state.column + k) % nq)
         new = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, state)
         sigma = jnp.sqrt(jnp.maximum(jnp.diagonal(P)[nq:], 0.0))
-        return new, (x, sigma, positions(mk, values.marker_offsets), ok)
+        return new, (x, sigma, positions(mk, values.marker_offsets),
+                     turning(structure, values, x[:nq]), ok)
 
     return Program(step, "filter_step", (structure, measured, n_z))
 
@@ -157,7 +169,8 @@ class MotionFilter:
     quasi-static estimate starts the filter. A bad reading, a time that does not follow the
     last, or a step that leaves the model's strain range is answered not converged with the
     reason in ``note`` and leaves the state as it was; ``RESTART`` of the last two in a row
-    (e.g. a clock that was reset) start the filter again at rest."""
+    (e.g. a clock that was reset) start the filter again at rest. Friction follows each
+    tendon's history (module docstring); ``update(..., sliding={"t1": "out"})`` sets it."""
 
     def __init__(self, prob: Problem, noise: Noise = Noise(), walk: float = WALK):
         if prob.located:
@@ -175,6 +188,8 @@ class MotionFilter:
         self._markers = jax.device_put(points_at(model.structure, model.values,
                                                  model.values.marker_X))
         self._tuning = Tuning(*(np.float64(v) for v in (walk, noise.length, noise.tension)))
+        history = FrictionHistory(model.values.friction, MARGIN * noise.tension)
+        self._history = history if history.active else None
         self._start = self._tuning._replace(walk=np.float64(0.0))
         self._call = None  # the step's executable, once loaded
         self.reset()
@@ -191,14 +206,22 @@ class MotionFilter:
     def reset(self):
         """Forget the state: the next sample starts the filter again, at rest."""
         self._state, self._t, self._failures = None, -np.inf, 0
+        if self._history is not None:
+            self._history = FrictionHistory(self._history.mu, self._history.margin)
 
     def update(self, displacements: Mapping[str, float], tensions: Mapping[str, float],
-               time: float | None) -> SampleEstimate:
+               time: float | None, sliding: Mapping[str, str] | None = None
+               ) -> SampleEstimate:
         """Estimate one sample: length changes (m) and tensions (N) by tendon name at
-        ``time`` (s)."""
+        ``time`` (s); ``sliding`` {tendon: in|out|stuck} where the direction is known."""
         prob = self.problem
         try:
             T, y = prob.readings(displacements, tensions)
+            names = prob.robot.tendon_names
+            given = {}
+            if sliding:
+                check_sliding(prob.robot, sliding)
+                given = {names.index(n): d for n, d in sliding.items()}
         except ValueError as exc:
             return self._failed(f"bad value: {exc}")
         try:
@@ -208,9 +231,15 @@ class MotionFilter:
         if time is None or not np.isfinite(time):
             return self._failed("time: estimation in motion needs a finite time stamp (s)")
         drive = prob.drive(T, y[list(prob.measured)])
-        state, tuning = self._state, self._tuning
+        state, tuning, values = self._state, self._tuning, self._values
+        history = None if self._history is None else self._history.copy()
+        friction = None
+        if history is not None and not history.pulled(T, given):
+            friction = history.step(T, None, given)  # at the last shape's turning angles
+            values = values._replace(friction=jax.device_put(friction * history.mu))
         if state is None:
-            start = estimate_problem(prob, displacements, tensions, self.noise)
+            start = estimate_problem(prob, displacements, tensions, self.noise,
+                                     values=values)
             if not start.converged:
                 return self._failed("the first sample's quasi-static estimate did not converge",
                                     start.extra["x"], start.iterations)
@@ -222,18 +251,27 @@ class MotionFilter:
         elif not time > self._t:
             return self._lost(f"time {time:g} s does not follow the last estimate's "
                               f"{self._t:g} s")
-        args = (state, np.float64(time), drive, self._unknowns, self._values, tuning,
+        args = (state, np.float64(time), drive, self._unknowns, values, tuning,
                 self._markers)
         if self._call is None:
             self._call = self._step.executable(*args)
         new, row = self._call(*args)
-        x, sigma, markers, ok = jax.device_get(row)
+        x, sigma, markers, phi, ok = jax.device_get(row)
         if not ok:
             return self._lost("the step left the model's strain range or did not stay finite")
         self._state, self._t, self._failures = new, float(time), 0
         n = prob.n_magnitudes
-        return SampleEstimate(x[prob.model.nq:][:n], sigma[:n],
-                              dict(zip(prob.robot.marker_names, markers)), True, 1, x)
+        est = SampleEstimate(x[prob.model.nq:][:n], sigma[:n],
+                             dict(zip(prob.robot.marker_names, markers)), True, 1, x)
+        if history is None:
+            return est
+        history.phi = phi  # the next sample's state turns at this shape
+        self._history = history
+        if friction is None:
+            return est
+        return replace(est, friction_state=friction, sliding=tuple(
+            "stuck" if given.get(k) == "stuck" else direction(v)
+            for k, v in enumerate(friction)))
 
     def _at_rest(self, t, x, P, drive) -> FilterState:
         """A state at ``x`` with covariance ``P`` and the exact Jacobians there."""

@@ -1,5 +1,7 @@
 """Identification of E, ρ and μ over static snapshots (eq. 18–19), from marker positions,
-tendon length changes, or both.
+tendon length changes, or both; snapshots taken while a tendon was paid out (released) sign
+its Capstan exponent the other way (:mod:`tendonsense.sliding`), so that pull/release cycles
+under a known load measure μ by the width of their hysteresis.
 
 Each snapshot's equilibrium is an exact constraint: its shape ``q_k(θ)`` is solved by the core
 Newton solver, and the measurement Jacobian follows by implicit differentiation,
@@ -10,7 +12,7 @@ each weighted by its noise).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Callable, NamedTuple, Sequence
 
@@ -53,8 +55,9 @@ class LeftOut:
 
 @dataclass(frozen=True)
 class Identified:
-    """The fitted parameters (SI) and the misfits before and after (RMS, m; None for a kind of
-    measurement no snapshot has)."""
+    """The fitted parameters (SI) with their 1-σ uncertainty from the measurement noise (the
+    Gauss–Newton covariance at the fit), and the misfits before and after (RMS, m; None for a
+    kind of measurement no snapshot has)."""
 
     parameters: dict[str, float]
     marker_rmse: float | None
@@ -66,9 +69,10 @@ class Identified:
     robot: Robot  # the robot with the fitted values
     crossval: tuple[LeftOut, ...] = ()
     snapshot_errors: tuple[tuple[float | None, float | None], ...] = ()  # per snapshot, fitted
+    sigma: dict[str, float] = field(default_factory=dict)  # 1 σ per parameter, SI
 
     def to_json(self) -> dict:
-        out = {**self.parameters, "marker_rmse": self.marker_rmse,
+        out = {**self.parameters, "sigma": self.sigma, "marker_rmse": self.marker_rmse,
                "displacement_rmse": self.displacement_rmse,
                "initial_marker_rmse": self.initial_marker_rmse,
                "initial_displacement_rmse": self.initial_displacement_rmse,
@@ -90,6 +94,7 @@ def _check(robot: Robot, snapshots: Sequence[Snapshot], params: Sequence[str]):
         try:
             inputs.tensions(robot, s.tensions)
             inputs.displacements(robot, s.displacements)
+            inputs.sliding(robot, s.sliding, ("in", "out"))
         except ValueError as exc:
             raise SnapshotError(f"snapshot {k}: {exc}") from None
         if not s.markers and not s.displacements:
@@ -172,6 +177,7 @@ class _Setup:
     drives: list
     markers: list  # per snapshot: (indices, measured (n, 3))
     lengths: list  # per snapshot: (indices, measured (n,))
+    signs: list  # per snapshot: every tendon's friction sign (n_t,), +1 in, −1 out
     weights: tuple[float, float]  # 1/σ markers, 1/σ lengths
     scale: np.ndarray  # θ at log ratio 0
 
@@ -188,8 +194,9 @@ class _Setup:
         other = {k: v for k, v in theta.items() if k in ("young_modulus", "density")}
         return self.model.with_values(friction=mu, **other).values, theta
 
-    def column(self, Et: dict, name: str) -> np.ndarray:
-        """∂E/∂θ of one parameter (``friction``: the tendons without a μ of their own)."""
+    def column(self, Et: dict, name: str, signs: np.ndarray) -> np.ndarray:
+        """∂E/∂θ of one parameter (``friction``: the tendons without a μ of their own) at a
+        snapshot whose tendons slide with ``signs`` (its friction is ``signs · μ``)."""
         if name in ("young_modulus", "density"):
             return np.asarray(Et[name])
         names = self.model.robot.tendon_names
@@ -198,7 +205,7 @@ class _Setup:
             cols = [j for j, n in enumerate(names) if n not in own]
         else:
             cols = [names.index(name.partition("_")[2])]
-        return np.asarray(Et["friction"])[:, cols].sum(axis=1)
+        return np.asarray(Et["friction"])[:, cols] @ signs[cols]
 
     def evaluate(self, log_ratio, subset, q_start):
         """Per snapshot in ``subset``: (marker residual (n, 3), length residual (n,)), the
@@ -212,15 +219,17 @@ class _Setup:
         parts, jac, qs = [], [], {}
         wm, wl = self.weights
         for k in subset:
-            d = self.drives[k]
-            sol = solve_system(structure, values, (), d, unknowns, q_start.get(k))
+            d, signs = self.drives[k], self.signs[k]
+            vk = values if np.all(signs == 1) else values._replace(
+                friction=signs * np.asarray(values.friction))
+            sol = solve_system(structure, vk, (), d, unknowns, q_start.get(k))
             if not bool(sol.converged):
                 return None
-            p, y = measure(sol.x, values)
+            p, y = measure(sol.x, vk)
             (mi, mp), (li, ly) = self.markers[k], self.lengths[k]
             parts.append((np.asarray(p)[mi] - mp, np.asarray(y)[li] - ly))
-            Eq, Et, Pq, Yq = jac_fn(sol.x, values, d)
-            dE = np.stack([self.column(Et, n) for n in self.params], axis=1) * dtheta
+            Eq, Et, Pq, Yq = jac_fn(sol.x, vk, d)
+            dE = np.stack([self.column(Et, n, signs) for n in self.params], axis=1) * dtheta
             dq = -np.linalg.solve(np.asarray(Eq), dE)
             jac += [wm * (np.asarray(Pq)[mi] @ dq).reshape(-1, len(self.params)),
                     wl * np.asarray(Yq)[li] @ dq]
@@ -293,7 +302,8 @@ def _setup(robot: Robot, snapshots: Sequence[Snapshot], params, marker_noise, le
     for noise, what in ((marker_noise, "marker noise"), (length_noise, "length noise")):
         if not (np.isfinite(noise) and noise > 0):
             raise ValueError(f"{what} must be a positive number of metres, got {noise}")
-    return _Setup(model, tuple(params), drives, markers, lengths,
+    signs = [inputs.friction_signs(robot, s.sliding) for s in snapshots]
+    return _Setup(model, tuple(params), drives, markers, lengths, signs,
                   (1.0 / marker_noise, 1.0 / length_noise),
                   np.array([start[p] for p in params]))
 
@@ -320,7 +330,10 @@ def identify(robot: Robot, snapshots: Sequence[Snapshot],
              crossval: bool = False) -> Identified:
     """Fit ``params`` (among young_modulus, density, friction — one μ for every tendon — and
     friction_<tendon>) to the snapshots' markers and/or tendon length changes, starting from
-    the robot file's values; each kind of measurement weighted by its noise (1 σ, m).
+    the robot file's values; each kind of measurement weighted by its noise (1 σ, m), which
+    also gives each parameter's 1-σ uncertainty (``sigma``). A snapshot's ``sliding``
+    {tendon: in|out} is the direction the tendon was moving when it was taken (pulled in or
+    paid out); snapshots of both, under a known load, tell μ apart from E.
 
     With ``crossval``, also refit without each snapshot in turn and predict it
     (:class:`LeftOut`): whether the calibration generalises beyond the poses it saw."""
@@ -334,10 +347,13 @@ def identify(robot: Robot, snapshots: Sequence[Snapshot],
                             "parameters")
     _observable(first[1], params, _what(snapshots))
     initial = _errors(first[0])
-    theta, parts, _, qs, converged, it = setup.fit(np.zeros(len(params)), everything,
+    theta, parts, J, qs, converged, it = setup.fit(np.zeros(len(params)), everything,
                                                    first[2], max_iterations, progress)
     _, fitted = setup.values(theta)
     fitted = {k: float(v) for k, v in fitted.items()}
+    # (JᵀJ)⁻¹ of the noise-weighted residuals: the covariance of log θ (eq. 19 linearised)
+    log_sigma = np.sqrt(np.diag(np.linalg.pinv(J.T @ J)))
+    sigma = {k: float(v * ls) for (k, v), ls in zip(fitted.items(), log_sigma)}
     per_snapshot = tuple(_errors([p]) for p in parts)
     folds = _cross_validate(setup, snapshots, theta, qs, per_snapshot, max_iterations,
                             progress) if crossval else ()
@@ -348,7 +364,7 @@ def identify(robot: Robot, snapshots: Sequence[Snapshot],
                                       density=fitted.get("density"),
                                       friction={**shared, **mu} or None)
     return Identified(fitted, *_errors(parts), *initial, converged, it, new_robot, folds,
-                      per_snapshot)
+                      per_snapshot, sigma)
 
 
 def _cross_validate(setup: _Setup, snapshots, theta, qs, fitted_errors, max_iterations,

@@ -139,17 +139,24 @@ def direction(state: float) -> str:
     return "in" if state >= 1 - EDGE else "out" if state <= -1 + EDGE else "stuck"
 
 
-def sliding(robot: Robot, directions: Mapping[str, str] | None) -> dict[str, str]:
+#: a tendon's friction direction in a simulation: pulled in, paid out, or following its
+#: tension history (the play operator of :mod:`tendonsense.sliding`)
+SIMULATED_SLIDING = ("in", "out", "follow")
+
+
+def sliding(robot: Robot, directions: Mapping[str, str] | None,
+            allowed: tuple[str, ...] = SLIDING, default: str = "in") -> dict[str, str]:
     """Every tendon's sliding direction: ``in`` (pulled in: its tension fades from the actuator
     toward the anchor, eq. 10, the default), ``out`` (paid out: it grows toward the anchor) or
-    ``stuck`` (anywhere between); a ValueError names an unknown tendon or direction."""
-    out = dict.fromkeys(robot.tendon_names, "in")
+    ``stuck`` (anywhere between), or another of ``allowed``; a ValueError names an unknown
+    tendon or direction."""
+    out = dict.fromkeys(robot.tendon_names, default)
     for name, d in (directions or {}).items():
         if name not in out:
             raise ValueError(f"sliding {name}: no such tendon (robot has "
                              f"{', '.join(robot.tendon_names)})")
-        if d not in SLIDING:
-            raise ValueError(f"sliding {name}={d!r}: must be one of {', '.join(SLIDING)}")
+        if d not in allowed:
+            raise ValueError(f"sliding {name}={d!r}: must be one of {', '.join(allowed)}")
         out[name] = d
     return out
 

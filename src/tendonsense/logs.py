@@ -40,7 +40,8 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
     if dynamic:
         online = OnlineEstimator(prob, noise, dynamic=True, walk=walk)
         for first in range(0, len(samples), CHUNK):
-            yield first, [None if s.error else online.update(s.displacements, s.tensions, s.time)
+            yield first, [None if s.error else online.update(s.displacements, s.tensions, s.time,
+                                                             s.sliding)
                           for s in samples[first:first + CHUNK]]
         return
     good = [k for k, s in enumerate(samples) if not s.error]

@@ -62,7 +62,8 @@ class OnlineEstimator:
     With ``dynamic=True`` each sample needs its ``time`` (s) and is estimated with the damped
     model (:class:`~tendonsense.filtering.MotionFilter`, ``walk`` its unknowns' random walk per
     √s): right while the robot moves, at a fixed amount of work per sample after the first
-    (a static estimate, taken at rest); its tendons are taken as pulled in.
+    (a static estimate, taken at rest); friction follows the history there too, without the
+    range of a stuck sample.
     """
 
     def __init__(self, prob: Problem, noise: Noise = Noise(), time_limit: float = 0.02,
@@ -118,7 +119,7 @@ class OnlineEstimator:
         tendon name, taken at ``time`` (s; needed with ``dynamic``); ``sliding`` {tendon:
         in|out|stuck} where the direction is known."""
         if self._filter is not None:
-            return self._filter.update(displacements, tensions, time)
+            return self._filter.update(displacements, tensions, time, sliding)
         start = _clock()
         prob = self.problem
         try:

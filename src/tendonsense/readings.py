@@ -195,19 +195,22 @@ class SnapshotError(ValueError):
 @dataclass(frozen=True)
 class Snapshot:
     """One static pose: tensions (N, per tendon), an optional known global point load, and
-    what was measured: marker positions (m, global) and/or tendon length changes (m)."""
+    what was measured: marker positions (m, global) and/or tendon length changes (m); the
+    direction a tendon was sliding when it was taken (in or out; in if not said)."""
 
     tensions: dict[str, float]
     markers: dict[str, np.ndarray] = field(default_factory=dict)
     load: tuple[float, tuple[float, float, float]] | None = None
     displacements: dict[str, float] = field(default_factory=dict)
+    sliding: dict[str, str] = field(default_factory=dict)
 
 
 
 
 def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
     """SNAPSHOTS.csv: one row per static snapshot (tensions, an optional known load, marker
-    positions and/or tendon length changes)."""
+    positions and/or tendon length changes, and optionally the direction each tendon was
+    sliding: ``sliding_<tendon>`` in or out)."""
     path = Path(path)
     raw = read_csv_rows(path, SnapshotError)
     header = raw[0] if raw else []
@@ -221,12 +224,13 @@ def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
     for col in header:
         kind, _, name = col.partition("_")
         ok = (col in DESCRIPTIVE or col in load_cols
-              or (kind in ("tension", "displacement") and name in robot.tendon_names)
+              or (kind in ("tension", "displacement", "sliding")
+                  and name in robot.tendon_names)
               or (kind == "marker" and name[:-2] in markers and name[-2:] in ("_x", "_y", "_z")))
         if not ok:
             raise SnapshotError(f"{path}: column {col!r} is not tension_<tendon>, "
-                                f"displacement_<tendon>, load_X/_fx/_fy/_fz or "
-                                f"marker_<marker>_x/_y/_z")
+                                f"displacement_<tendon>, sliding_<tendon>, "
+                                f"load_X/_fx/_fy/_fz or marker_<marker>_x/_y/_z")
     missing = [f"tension_{n}" for n in robot.tendon_names if f"tension_{n}" not in header]
     if missing:
         raise SnapshotError(f"{path}: no column {', '.join(missing)}: every tendon's tension "
@@ -275,7 +279,16 @@ def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
                 raise SnapshotError(f"{path}: snapshot row {i}: load_X = {load_vals[0]:g} is "
                                     f"outside the rod")
             load = (load_vals[0], tuple(load_vals[1:]))
-        out.append(Snapshot(tensions, pos, load, lengths))
+        sliding = {}
+        for n in robot.tendon_names:
+            word = (row.get(f"sliding_{n}") or "").strip().lower()
+            if word and word not in ("in", "out"):
+                raise SnapshotError(f"{path}: snapshot row {i}: column sliding_{n}: {word!r} "
+                                    f"is not in or out (a stuck tendon's friction is not "
+                                    f"known: leave the snapshot out)")
+            if word:
+                sliding[n] = word
+        out.append(Snapshot(tensions, pos, load, lengths, sliding))
     return out
 
 
@@ -339,7 +352,7 @@ def output_rows(robot: Robot, samples, results, n_unknowns: int, located: Sequen
 
 def with_sliding(robot: Robot) -> bool:
     """Whether OUT.csv has the ``sliding_<tendon>`` and range columns: the robot has friction
-    (a log followed with every tendon pulled in, e.g. ``--dynamic``, says ``in``)."""
+    (a row whose tendons are all pulled in says ``in``)."""
     return any(t.friction > 0 for t in robot.tendons)
 
 

@@ -22,12 +22,17 @@ CHUNK = 250
 #: the default integration step, s (samples between steps are interpolated)
 MAX_STEP = 2e-3
 
+#: the friction state a direction sets (NaN: the tension history decides)
+STATES = {"in": 1.0, "out": -1.0, "follow": np.nan}
+
 
 @dataclass(frozen=True, eq=False)
 class Simulation:
     """A simulated motion, one row per output time: ``q`` and ``v`` (q̇) ``(n, nq)``, the
     tensions (N), tendon length changes (m) and marker positions ``(n, 3)`` (global, m) by name;
-    ``converged`` per sample (every step solved, the strain in the model's range)."""
+    ``converged`` per sample (every step solved, the strain in the model's range); every
+    tendon's friction state by name (+1 pulled in, −1 paid out, stuck between;
+    :mod:`tendonsense.sliding`)."""
 
     time: np.ndarray
     q: np.ndarray
@@ -36,6 +41,7 @@ class Simulation:
     displacements: dict[str, np.ndarray]
     markers: dict[str, np.ndarray]
     converged: np.ndarray
+    friction_state: dict[str, np.ndarray]
 
     @property
     def ok(self) -> bool:
@@ -83,7 +89,8 @@ def _table(entries: Sequence, width: int, what: str):
 
 def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
              point_forces: Sequence = (), duration: float = 1.0, output_dt: float = 0.01,
-             max_step: float = MAX_STEP, inertia: bool = True, q0=None) -> Simulation:
+             max_step: float = MAX_STEP, inertia: bool = True, q0=None,
+             sliding: Mapping[str, str] | None = None) -> Simulation:
     """Forward dynamics from rest at ``q0`` (default the straight rod) at t = 0, gravity and
     the given loads acting from t = 0, sampled every ``output_dt`` s up to ``duration``.
 
@@ -93,6 +100,10 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     where a solve fails); samples between steps by cubic Hermite interpolation of q and q̇.
     ``inertia=False`` drops ``M q̈`` and
     ``C q̇`` (the quasi-static limit with damping; needs ``[rod] damping`` > 0).
+    ``sliding`` {tendon: in|out|follow}: the sense of a tendon's friction; ``follow`` (the
+    default) as the estimators take it: pulled in while its tension rises, stuck when it
+    turns, paid out once it has fallen through the band (a tendon released); ``in`` is eq. 10
+    as written whatever the tension does.
 
     >>> sim = simulate(robot, {"t1": ([0, 1, 2], [0.0, 3.0, 3.0])}, duration=3.0)
     >>> sim.markers["tip"][-1], sim.readings(noise_length=1e-4, seed=0)["displacement_t1"]
@@ -119,6 +130,7 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
                 raise ValueError(error)
         T_entries.append(e)
     T_times, T = _table(T_entries, 1, "tension")
+    directions = inputs.sliding(robot, sliding, inputs.SIMULATED_SLIDING, "follow")
     X, F_entries = [], []
     for i, (x, f) in enumerate(point_forces):
         fixed = np.asarray(f[1], float)[0] if _is_series(f) else f
@@ -131,7 +143,8 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
         X, F_entries = [0.0], [np.zeros(3)]
     F_times, F = _table(F_entries, 3, "point force")
     schedule = Schedule(T_times, T[:, :, 0], F_times, F, np.array(X, float),
-                        np.asarray(robot.gravity, float))
+                        np.asarray(robot.gravity, float),
+                        np.array([STATES[d] for d in directions.values()]))
 
     model = model_for(robot)
     nq = model.nq
@@ -141,7 +154,7 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     state = start(q, np.zeros(nq), np.float64(0.0), np.float64(max_step), schedule,
                   model.values)
     markers, _, y, fine = shape_outputs(model.structure, model.values, q)
-    first = (q, np.asarray(state.v), markers, y, True, fine)
+    first = (q, np.asarray(state.v), markers, y, True, fine, np.asarray(state.band.s))
     parts = []
     for k in range(0, times.size, CHUNK):
         chunk = times[k:k + CHUNK]
@@ -149,12 +162,13 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
         padded = np.concatenate([chunk, pad])
         state, out = run(state, padded, np.float64(max_step), schedule, model.values)
         parts.append([np.asarray(a)[:chunk.size] for a in out])
-    qs, vs, mk, ys, ok, fine = (np.concatenate([[f], *(p[i] for p in parts)])
-                                for i, f in enumerate(first))
+    qs, vs, mk, ys, ok, fine, states = (np.concatenate([[f], *(p[i] for p in parts)])
+                                        for i, f in enumerate(first))
     t_all = np.concatenate([[0.0], times])
     T_all = np.stack([np.interp(t_all, T_times, T[:, j, 0]) for j in range(len(names))], 1)
     return Simulation(
         t_all, qs, vs, {n: T_all[:, j] for j, n in enumerate(names)},
         {n: ys[:, j] for j, n in enumerate(names)},
-        {m: mk[:, i] for i, m in enumerate(robot.marker_names)}, ok & fine)
+        {m: mk[:, i] for i, m in enumerate(robot.marker_names)}, ok & fine,
+        {n: np.nan_to_num(states[:, j], nan=1.0) for j, n in enumerate(names)})
 

@@ -41,14 +41,15 @@ class FrictionHistory:
     with the tension, ``Δs = Δ ln T / (μφ)`` clipped to [−1, 1], and is kept while the tension
     is (a change of shape alone neither pulls a tendon in nor pays it out)."""
 
-    def __init__(self, mu):
+    def __init__(self, mu, margin: float = 0.0):
         self.mu = np.asarray(mu, float)
+        self.margin = float(margin)  # of ln T: changes within it are not taken as motion
         self.s = np.full(self.mu.shape, np.nan)  # the last state; NaN: slack or no reading
         self.p = np.zeros(self.mu.shape)  # the last ln T
         self.phi = np.zeros(self.mu.shape)  # the turning angles of the last shape
 
     def copy(self) -> "FrictionHistory":
-        h = FrictionHistory(self.mu)
+        h = FrictionHistory(self.mu, self.margin)
         h.s, h.p, h.phi = self.s.copy(), self.p.copy(), self.phi.copy()
         return h
 
@@ -68,7 +69,7 @@ class FrictionHistory:
         p = np.log(np.where(live, T, 1.0))
         if np.any(live & ((self.s < 1) | (p < self.p))):  # NaN (slack before): False
             return False
-        self.s, self.p = np.where(live, 1.0, np.nan), p
+        self.s, self.p = np.where(live, np.where(np.isnan(self.s), 1.0, self.s), np.nan), p
         return True
 
     def step(self, tensions, phi=None, given: Mapping[int, str] | None = None) -> np.ndarray:
@@ -85,14 +86,18 @@ class FrictionHistory:
         with np.errstate(divide="ignore", invalid="ignore"):  # no band: in or out at once
             change = np.where(band > 0, rise / np.where(band > 0, band, 1.0),
                               np.sign(rise) * np.inf)
-        s = np.where(np.isnan(self.s), 1.0,
-                     np.clip(self.s + np.nan_to_num(change, nan=0.0), -1.0, 1.0))
+        # the state moves within ±(1 + margin/band) and reads clipped to ±1: a reading must
+        # pass the band's edge by the margin to move the anchor's tension
+        wide = 1.0 + self.margin / np.where(band > 0, band, 1e-300) if self.margin else \
+            np.ones_like(band)
+        u = np.where(np.isnan(self.s), wide,
+                     np.clip(self.s + np.nan_to_num(change, nan=0.0), -wide, wide))
         for k, d in (given or {}).items():
             if d != "stuck":
-                s[k] = 1.0 if d == "in" else -1.0
-        s = np.where(live, s, 1.0)
-        self.s, self.p = np.where(live, s, np.nan), p
-        return s
+                u[k] = wide[k] if d == "in" else -wide[k]
+        u = np.where(live, u, wide)
+        self.s, self.p = np.where(live, u, np.nan), p
+        return np.clip(u, -1.0, 1.0)
 
 
 class Band(NamedTuple):
