@@ -15,7 +15,8 @@ from conftest import ROOT
 
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 #: files that the examples themselves write before another example reads them
-WRITTEN = {"fitted.toml", "estimates.csv", "live.csv", "solve.png", "estimate.png", "motion.csv"}
+WRITTEN = {"fitted.toml", "estimates.csv", "live.csv", "solve.png", "estimate.png", "motion.csv",
+           "step.csv"}
 
 
 def python_blocks(page: Path) -> list[str]:

@@ -206,6 +206,23 @@ def test_a_solve_that_did_not_converge_is_not_dressed_as_one(tmp_path):
     assert (tmp_path / "s.png").stat().st_size > 10_000  # asked for: drawn, stamped
 
 
+def test_a_least_squares_fit_short_of_its_minimum_says_so(prototype, monkeypatch):
+    """An overdetermined estimate stopped by its step limit names the fit, not the
+    equilibrium's residual (which is within its tolerance: no contradiction)."""
+    from tendonsense import estimation
+    T = {"t1": 2.0, "t2": 1.0, "t3": 0.5}
+    truth = solve(prototype, T, [(0.25, (0.0, 0.0, -0.3))]).displacements
+    y = {n: v + d for (n, v), d in zip(truth.items(), (2e-4, -3e-4, 1e-4))}
+    unknown = [PointForceUnknown(0.25, (0, 0, -1))]
+    assert estimate(prototype, y, T, unknown).converged
+    monkeypatch.setattr(estimation, "LM_STEPS", 1)
+    est = estimate(prototype, y, T, unknown)
+    assert not est.converged
+    assert est.extra["note"].startswith("the least-squares fit took its 1 steps without "
+                                        "reaching a minimum (relative offset ")
+    assert "residual" not in est.extra["note"]
+
+
 def test_a_fitted_robot_file_keeps_its_comments_and_says_how_it_was_made(tmp_path):
     guess = ROOT / "examples" / "tutorial" / "robot_guess.toml"
     p = cli("identify", guess, "--snapshots", ROOT / "examples" / "tutorial" / "snapshots.csv",

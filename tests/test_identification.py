@@ -191,3 +191,67 @@ def test_snapshot_sliding_column(truth, tmp_path):
     path.write_text(path.read_text().replace(",out\n", ",stuck\n", 1))
     with pytest.raises(SnapshotError, match="row 5: column sliding_t1: 'stuck'"):
         read_snapshots(path, truth)
+
+
+def _step_log(robot, noise=0.0, seed=0, ramp=([0.0, 0.2, 0.4, 1.5], [1.0, 1.0, 3.0, 3.0])):
+    """The readings of t1 pulled from 1 N to 3 N in 0.2 s under a tip weight, from rest,
+    simulated with the robot's damping (no inertia), 100 Hz, with length noise."""
+    from tendonsense.readings import Sample
+    from tendonsense.simulation import simulate
+    load = [(robot.rod.length, (0.0, 0.0, -0.3))]
+    q0 = solve(robot, {"t1": 1.0}, load).q
+    sim = simulate(robot, {"t1": ramp}, load, duration=1.5, output_dt=0.01, inertia=False,
+                   q0=q0)
+    c = sim.readings(noise, 0.0, seed=seed)
+    rows = [Sample(k + 1, c["time"][k], {n: c[f"tension_{n}"][k] for n in robot.tendon_names},
+                   {"t1": c["displacement_t1"][k]}, {}) for k in range(len(c["time"]))]
+    return rows, load, c
+
+
+def test_damping_from_a_step():
+    """η from the motion after a tension step (issue 26): exact without noise; with 0.1 mm
+    of length noise within 3 σ of the truth; a log without motion cannot give it."""
+    from tendonsense.identification import identify_damping
+    damped = load_robot(ROOT / "examples" / "paper_prototype_damped.toml")
+    eta = damped.rod.damping  # τ = 30 ms
+    start = damped.with_parameters(damping=0.0)
+    rows, load, _ = _step_log(damped)
+    fit = identify_damping(start, rows, load, inertia=False)
+    assert fit.converged and not fit.note
+    assert fit.parameters["damping"] == pytest.approx(eta, rel=1e-3)
+    assert fit.displacement_rmse < 1e-7 and fit.robot.rod.damping == fit.parameters["damping"]
+    rows, load, _ = _step_log(damped, 1e-4, seed=1)
+    fit = identify_damping(start, rows, load, inertia=False)
+    assert 0 < fit.sigma["damping"] < 0.1 * eta
+    assert abs(fit.parameters["damping"] - eta) < 3 * fit.sigma["damping"]
+    still, load, _ = _step_log(damped, ramp=([0.0], [2.0]))
+    with pytest.raises(SnapshotError, match="cannot be identified"):
+        identify_damping(start, still, load, inertia=False)
+
+
+def test_cli_identify_damping(tmp_path):
+    """``identify --readings LOG --param damping``: the fitted file gets ``damping``; slips
+    (damping from snapshots, another parameter from a log) are usage errors."""
+    from tendonsense.robot import robot_to_toml
+    damped = load_robot(ROOT / "examples" / "paper_prototype_damped.toml")
+    _, _, cols = _step_log(damped)
+    log = tmp_path / "step.csv"
+    with open(log, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(list(cols))
+        w.writerows(zip(*cols.values()))
+    toml = tmp_path / "robot.toml"
+    toml.write_text(robot_to_toml(damped.with_parameters(damping=0.0)))
+    run = lambda *a: subprocess.run(  # noqa: E731
+        [sys.executable, "-m", "tendonsense.cli", "identify", str(toml), *map(str, a)],
+        capture_output=True, text=True)
+    r = run("--readings", log, "--point-force", "0.25,0,0,-0.3", "--no-inertia", "-o",
+            tmp_path / "fitted.toml", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["damping"] == pytest.approx(damped.rod.damping, rel=1e-3)
+    assert load_robot(tmp_path / "fitted.toml").rod.damping == pytest.approx(out["damping"])
+    for args, words in ((("--readings", log, "--param", "density"), "damping alone"),
+                        (("--snapshots", log, "--param", "damping"), "give --readings")):
+        r = run(*args)
+        assert r.returncode == 2 and words in r.stderr, r.stderr

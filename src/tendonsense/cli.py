@@ -276,19 +276,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-force", type=_positive, default=1.0, metavar="N",
                    help="the point force slider's range, N (default 1)")
 
-    p = command("identify", "fit stiffness, density or friction to measured poses (calibration)",
+    p = command("identify", "fit stiffness, density, friction or damping to measurements "
+                "(calibration)",
                 "Fit the Young's modulus, density and/or friction coefficients of the robot "
                 "file to static poses (snapshots): marker positions, the tendons' own length "
-                "readings (no camera needed), or both. Every tendon has a tension_<name> "
+                "readings (no camera needed), or both; or its damping to a readings log of a "
+                "motion (--readings, --param damping). Every tendon has a tension_<name> "
                 "column (zeros for a slack one).")
     p.add_argument("robot", help="the robot file (TOML); its values are the starting guess")
-    p.add_argument("--snapshots", required=True, metavar="SNAPSHOTS.csv",
+    p.add_argument("--snapshots", metavar="SNAPSHOTS.csv",
                    help="the measured poses: tensions, an optional known load, marker "
                         "positions and/or tendon length changes, one row per pose")
+    p.add_argument("--readings", metavar="LOG.csv",
+                   help="instead of --snapshots, for --param damping: a readings log with "
+                        "time stamps of a motion from rest (a step or a ramp of the tensions "
+                        "under known --point-force loads)")
     p.add_argument("--param", action="append", metavar="NAME",
                    help="a parameter to fit: young_modulus, density, friction (one μ for every "
                         "tendon) or friction_<tendon>; repeatable (default: young_modulus and "
-                        "density)")
+                        "density); or damping, alone, with --readings")
+    p.add_argument("--point-force", action="append", default=[], metavar="X,FX,FY,FZ",
+                   type=_numbers(4, "X,FX,FY,FZ"),
+                   help="with --readings: a known force FX, FY, FZ (N, global frame) at X (m) "
+                        "during the whole log; repeatable")
+    p.add_argument("--no-inertia", action="store_true",
+                   help="with --readings: simulate the motion without inertia (the "
+                        "quasi-static limit with damping: faster, right for slow motions)")
     p.add_argument("--marker-noise", type=_positive, default=1e-3, metavar="M",
                    help="standard deviation of a marker coordinate, m (default 0.001)")
     p.add_argument("--length-noise", type=_positive, default=1e-4, metavar="M",
@@ -351,6 +364,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-inertia", action="store_true",
                    help="leave out inertia (the quasi-static limit with damping; needs "
                         "[rod] damping > 0)")
+    p.add_argument("--from-equilibrium", action="store_true",
+                   help="start at rest in the static equilibrium of the tensions and loads at "
+                        "t = 0 (default: the straight rod at rest, the loads applied at t = 0)")
     p.add_argument("--sliding", action="append", default=[], type=_simulated_direction,
                    metavar="NAME=in|out|follow",
                    help="the sense of tendon NAME's friction: follow (the default, as the "
@@ -510,19 +526,54 @@ def _check(args, robot) -> None:
         _writable(args.results, "-o/--results")
         args.sets_read = read_parameter_sets(args.sets, robot)
     elif cmd == "identify":
-        from .readings import read_snapshots
-        bad = [p for p in args.param or () if p not in inputs.parameter_names(robot)]
-        if bad:
-            raise ValueError(f"--param {bad[0]}: not a parameter of this robot (one of "
-                             f"{', '.join(inputs.parameter_names(robot))})")
-        for path, what in ((args.fitted_robot, "-o/--fitted-robot"), (args.plot, "--plot")):
-            if path:
-                _writable(path, what)
-        args.snapshots_read = read_snapshots(args.snapshots, robot)
+        _check_identify(args, robot)
     elif cmd == "experiments" and not Path(args.csv).is_file():
         raise ValueError(f"{args.csv}: no such file")
     if (cmd == "view" or getattr(args, "view", False)) and not 0 < args.port < 65536:
         raise UsageError(f"tendonsense {cmd}: --port {args.port}: not a port number")
+
+
+def _check_identify(args, robot):
+    from .readings import has_time, read_readings, read_snapshots
+    if (args.snapshots is None) == (args.readings is None):
+        raise UsageError("tendonsense identify: give --snapshots SNAPSHOTS.csv (static poses) "
+                         "or --readings LOG.csv (a motion, for --param damping)")
+    params = args.param or (("damping",) if args.readings else ())
+    allowed = (*inputs.parameter_names(robot), "damping")
+    bad = [p for p in params if p not in allowed]
+    if bad:
+        raise ValueError(f"--param {bad[0]}: not a parameter of this robot (one of "
+                         f"{', '.join(allowed)})")
+    if args.readings is not None:
+        if list(params) != ["damping"]:
+            raise UsageError("tendonsense identify: --readings fits --param damping alone (E, "
+                             "density and friction are fitted to static --snapshots)")
+        for flag, given in (("--crossval", args.crossval), ("--plot", args.plot)):
+            if given:
+                raise UsageError(f"tendonsense identify: {flag} goes with --snapshots")
+    else:
+        if "damping" in params:
+            raise UsageError("tendonsense identify: --param damping is fitted to a motion: "
+                             "give --readings LOG.csv (with time stamps) instead of "
+                             "--snapshots")
+        for flag, given in (("--point-force", args.point_force),
+                            ("--no-inertia", args.no_inertia)):
+            if given:
+                raise UsageError(f"tendonsense identify: {flag} goes with --readings (a "
+                                 f"snapshot's load is in its load_* columns)")
+    inputs.check_point_forces(robot, _point_forces(args))
+    for path, what in ((args.fitted_robot, "-o/--fitted-robot"), (args.plot, "--plot")):
+        if path:
+            _writable(path, what)
+    if args.readings is not None:
+        if not Path(args.readings).is_file():
+            raise ValueError(f"{args.readings}: no such file")
+        args.log = read_readings(args.readings, robot)
+        if not has_time(args.readings):
+            raise ValueError(f"{args.readings}: no time column: the damping is fitted to a "
+                             f"motion over time")
+    else:
+        args.snapshots_read = read_snapshots(args.snapshots, robot)
 
 
 def _check_simulate(args, robot):
@@ -1154,7 +1205,8 @@ def _experiments(args, robot) -> bool:
 
 PARAMETER_WORDS = {"young_modulus": ("Young's modulus E", " Pa"),
                    "density": ("density ρ", " kg/m³"),
-                   "friction": ("friction coefficient μ", "")}
+                   "friction": ("friction coefficient μ", ""),
+                   "damping": ("damping η (Kelvin–Voigt)", " Pa·s")}
 
 
 def _mm(v):
@@ -1168,13 +1220,12 @@ def _parameter_text(k: str, v: float, sigma: float | None = None) -> str:
     return f"{label} ({k}): {v:.6g}{unit}{band}"
 
 
-def _fitted_header(args, robot, fit) -> list[str]:
+def _fitted_header(args, robot, fit, source: str) -> list[str]:
     """The comment block on top of FITTED.toml: how it was made."""
     from .robot import FITTED_HEADER_MARK
     now = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     lines = [f"{FITTED_HEADER_MARK.lstrip('# ')} {__version__} on {now}",
-             f"from {args.snapshots} ({len(args.snapshots_read)} snapshots); robot file "
-             f"{args.robot}",
+             f"from {source}; robot file {args.robot}",
              "parameters fitted: " + ", ".join(f"{k} = {v:.6g}" for k, v in
                                                fit.parameters.items())]
     for what, after, before in (("marker", fit.marker_rmse, fit.initial_marker_rmse),
@@ -1187,21 +1238,28 @@ def _fitted_header(args, robot, fit) -> list[str]:
 
 
 def _identify(args, robot) -> bool:
-    from .identification import identify
+    from .identification import identify, identify_damping
     from .readings import write_text_atomic
     from .robot import fitted_toml
-    snapshots = args.snapshots_read
     prog = _Progress(args, "identify")
-    fit = identify(robot, snapshots, args.param or ("young_modulus", "density"), progress=prog,
-                   marker_noise=args.marker_noise, length_noise=args.length_noise,
-                   crossval=args.crossval)
+    if args.readings is not None:
+        fit = identify_damping(robot, args.log[1], _point_forces(args),
+                               inertia=not args.no_inertia, marker_noise=args.marker_noise,
+                               length_noise=args.length_noise, progress=prog)
+        source = f"{args.readings} ({len(args.log[1])} rows)"
+    else:
+        fit = identify(robot, args.snapshots_read, args.param or ("young_modulus", "density"),
+                       progress=prog, marker_noise=args.marker_noise,
+                       length_noise=args.length_noise, crossval=args.crossval)
+        source = f"{args.snapshots} ({len(args.snapshots_read)} snapshots)"
     prog.close()
     written = []
     if fit.converged:
         if args.fitted_robot:
             text = Path(args.robot).read_text(encoding="utf-8")
             write_text_atomic(args.fitted_robot,
-                              fitted_toml(text, fit.robot, _fitted_header(args, robot, fit)))
+                              fitted_toml(text, fit.robot,
+                                          _fitted_header(args, robot, fit, source)))
             written.append(args.fitted_robot)
         if args.plot:
             from . import plotting
@@ -1210,11 +1268,15 @@ def _identify(args, robot) -> bool:
     if args.json:
         print(json.dumps(fit.to_json()))
         return fit.converged
-    print(f"identification ({robot.name}, {len(snapshots)} snapshots): "
+    print(f"identification ({robot.name}, {source}): "
           f"{'converged' if fit.converged else 'NOT CONVERGED'} in {fit.iterations} "
-          f"iterations")
+          f"{'simulations' if args.readings else 'iterations'}"
+          + (f": {fit.note}" if fit.note else ""))
     for k, v in fit.parameters.items():
         print(f"  {_parameter_text(k, v, fit.sigma.get(k))}")
+    if "damping" in fit.parameters:
+        print(f"  relaxation time τ = 3η/E: "
+              f"{3 * fit.parameters['damping'] / robot.rod.young_modulus * 1e3:.4g} ms")
     if fit.marker_rmse is not None:
         print(f"  marker RMSE: {_mm(fit.marker_rmse)} after the fit, "
               f"{_mm(fit.initial_marker_rmse)} with the robot file's values")
@@ -1239,9 +1301,20 @@ def _identify(args, robot) -> bool:
 def _simulate(args, robot) -> bool:
     from .readings import write_csv_atomic
     from .simulation import simulate
+    q0 = None
+    if args.from_equilibrium:
+        from .forward import solve
+        first = {n: float(np.interp(0.0, *e)) if isinstance(e, tuple) else e
+                 for n, e in args.schedule.items()}
+        rest = solve(robot, first, _point_forces(args))
+        if not rest.converged:
+            print(f"tendonsense simulate: the equilibrium at t = 0 did not converge "
+                  f"({rest.note}); nothing written", file=sys.stderr)
+            return False
+        q0 = rest.q
     sim = simulate(robot, args.schedule, _point_forces(args), duration=args.duration,
                    output_dt=args.output_dt, max_step=args.max_step,
-                   inertia=not args.no_inertia, sliding=args.sliding)
+                   inertia=not args.no_inertia, sliding=args.sliding, q0=q0)
     cols = sim.readings(args.noise_length, args.noise_tension, args.seed)
     write_csv_atomic(args.log, list(cols), np.column_stack(list(cols.values())).tolist())
     if args.plot:

@@ -33,10 +33,14 @@ from .statics import Drive, NewtonResult, Unknowns, shape_outputs, solve_system
 #: at its minimum (cost within 1e-6 of it)
 RELATIVE_OFFSET = 1e-3
 
+#: Levenberg–Marquardt steps of a least-squares estimate
+LM_STEPS = 100
+
 
 def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, budget=None):
     """min ‖y(q) − y_meas‖² over the magnitudes z, q solving equilibrium (eq. 17), by
-    Levenberg–Marquardt; returns (x, converged, iterations, newton result, misfit)."""
+    Levenberg–Marquardt; returns (x, converged, iterations, newton result, misfit, why) with
+    ``why`` the reason a fit whose equilibrium converged is not at a minimum (else None)."""
     nq, n_z = prob.model.nq, prob.n_z
     structure = prob.model.structure
     statics_unknowns = Unknowns.none(len(prob.robot.tendons), prob.load_X.size)
@@ -55,8 +59,8 @@ def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, 
     z = np.zeros(n_z) if x0 is None else np.asarray(x0[nq:], float)
     res, e = equilibrium(z, None if x0 is None else x0[:nq])
     total, damping = int(res.iterations), 1e-3
-    converged = False
-    for _ in range(100):
+    converged, offset, steps = False, np.inf, 0
+    for steps in range(1, LM_STEPS + 1):
         if not bool(res.converged):
             break
         Jz, _ = reduced_jacobians(prob, np.concatenate([np.asarray(res.x), z]), drive, values)
@@ -95,7 +99,15 @@ def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, 
                          or offset <= RELATIVE_OFFSET)
             break
     x = np.concatenate([np.asarray(res.x), z])
-    return x, converged and bool(res.converged), total, res, float(np.linalg.norm(e))
+    why = None
+    if bool(res.converged) and not converged:
+        why = (f"the least-squares fit stopped after {steps} steps short of a minimum: no step "
+               f"lowers the length misfit, yet the model could still explain a share "
+               f"{offset:.1e} of it (relative offset; a minimum is below {RELATIVE_OFFSET:g})"
+               if steps < LM_STEPS else
+               f"the least-squares fit took its {LM_STEPS} steps without reaching a minimum "
+               f"(relative offset {offset:.1e}; a minimum is below {RELATIVE_OFFSET:g})")
+    return (x, converged and bool(res.converged), total, res, float(np.linalg.norm(e)), why)
 
 
 def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping[str, float],
@@ -148,27 +160,29 @@ def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Nois
     values = model.values if values is None else values
     if prob.located:
         return _locate(prob, drive, values, T, noise, budget)
-    x, converged, iterations, res, misfit = _solve(prob, drive, values, x0, budget)
-    return _result(prob, x, drive, values, T, noise, converged, iterations, res, misfit)
+    x, converged, iterations, res, misfit, why = _solve(prob, drive, values, x0, budget)
+    return _result(prob, x, drive, values, T, noise, converged, iterations, res, misfit,
+                   why=why)
 
 
 def _solve(prob: Problem, drive: Drive, values: Values, x0, budget):
-    """(x, converged, iterations, Newton result, length misfit) of a square or
-    least-squares problem."""
+    """(x, converged, iterations, Newton result, length misfit, why not converged or None)
+    of a square or least-squares problem."""
     model = prob.model
     if len(prob.measured) == prob.n_z:
         res = solve_system(model.structure, values, prob.measured, drive, prob.unknowns, x0,
                            budget)
-        return np.asarray(res.x), bool(res.converged), int(res.iterations), res, 0.0
+        return np.asarray(res.x), bool(res.converged), int(res.iterations), res, 0.0, None
     return _least_squares(prob, drive, values, x0, prob.robot.numerics.tolerance, budget)
 
 
 def _result(prob: Problem, x, drive, values, T, noise, converged, iterations, res, misfit,
-            **extra) -> Result:
+            why=None, **extra) -> Result:
     n = prob.n_magnitudes
     sens, sigma = _uncertainty(prob, x, drive, values, T, noise)
     z = x[prob.model.nq:]
     return make_result(prob.model, x, T, NewtonResult(x, converged, iterations, res.residual, 0),
+                       why=why,
                        magnitudes=z[:n], sigma=sigma[:n],
                        sensitivity={k: v[:n] for k, v in sens.items()},
                        extra={"x": x, "length_misfit": misfit, **_located(prob, x, sigma),
@@ -223,7 +237,8 @@ def _locate(prob: Problem, drive: Drive, values: Values, T, noise: Noise, budget
     here = prob.at(grid[best])
     d_here = here.drive(drive.tensions, drive.targets)
     x0 = np.concatenate([tr.x[best], np.zeros(n_loc)])
-    x, converged, iterations, res, length_misfit = _solve(here, d_here, values, x0, budget)
+    x, converged, iterations, res, length_misfit, why = _solve(here, d_here, values, x0,
+                                                               budget)
     X = here.locations(x)
     lo, hi = np.array([r for _, r in prob.located]).T
     span = hi - lo
@@ -247,12 +262,12 @@ def _locate(prob: Problem, drive: Drive, values: Values, T, noise: Noise, budget
                          f"misfit keeps falling beyond it")
         here = prob.at(X)
         d_here = here.drive(drive.tensions, drive.targets)
-        xf, converged, iterations, res, length_misfit = _solve(
+        xf, converged, iterations, res, length_misfit, why = _solve(
             here.fixed(), d_here, values, tr.x[best], budget)
         x = np.concatenate([xf, np.zeros(n_loc)])
         converged = converged and not unrefined
     result = _result(here, x, d_here, values, T, noise, converged, iterations, res,
-                     length_misfit, location_profile=profile)
+                     length_misfit, why, location_profile=profile)
     poor = [f"{s:.3g} m" for s in result.extra["location_sigma"] if s is not None
             and not s <= POOR_LOCATION * prob.robot.rod.length]
     if poor:

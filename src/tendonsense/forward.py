@@ -33,12 +33,15 @@ def model_for(robot: Robot) -> Model:
     return Model.build(robot)
 
 
-def make_result(model: Model, x, tensions, res: NewtonResult, **extra) -> Result:
+def make_result(model: Model, x, tensions, res: NewtonResult, why: str | None = None,
+                **extra) -> Result:
+    """The result of a solve at ``x``; not converged, it says why: ``why`` if given, else the
+    strain's range or the solver's iterations and residual."""
     robot = model.robot
     q = np.asarray(x[: model.nq])
     markers, backbone, y, fine = shape_outputs(model.structure, model.values, q)
     if not (bool(res.converged) and fine):
-        why = (INADMISSIBLE if not fine else
+        why = (INADMISSIBLE if not fine else why or
                f"the solver stopped after {int(res.iterations)} iterations at relative residual "
                f"{float(res.residual):.1e} (tolerance {robot.numerics.tolerance:.0e})")
         note = extra.get("extra", {}).get("note")

@@ -19,15 +19,17 @@ from typing import Callable, NamedTuple, Sequence
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.optimize import brentq, minimize_scalar
 
 from . import inputs, tendons
 from .compiled import Program
-from .forward import model_for
+from .forward import model_for, solve
 from .inputs import PARAMETERS, parameter_names  # noqa: F401 (API)
 from .kinematics import poses
 from .model import Structure
 from .readings import Snapshot, SnapshotError, read_snapshots  # noqa: F401 (API)
 from .robot import Robot
+from .simulation import simulate
 from .statics import CACHE_SIZE, Drive, Unknowns, marker_positions, solve_system, terms
 
 
@@ -69,7 +71,8 @@ class Identified:
     robot: Robot  # the robot with the fitted values
     crossval: tuple[LeftOut, ...] = ()
     snapshot_errors: tuple[tuple[float | None, float | None], ...] = ()  # per snapshot, fitted
-    sigma: dict[str, float] = field(default_factory=dict)  # 1 σ per parameter, SI
+    sigma: dict[str, float | None] = field(default_factory=dict)  # 1 σ per parameter, SI
+    note: str = ""  # why the fit is not converged, when it is not
 
     def to_json(self) -> dict:
         out = {**self.parameters, "sigma": self.sigma, "marker_rmse": self.marker_rmse,
@@ -77,6 +80,8 @@ class Identified:
                "initial_marker_rmse": self.initial_marker_rmse,
                "initial_displacement_rmse": self.initial_displacement_rmse,
                "converged": self.converged, "iterations": self.iterations}
+        if self.note:
+            out["note"] = self.note
         if self.crossval:
             out["crossval"] = [c.to_json() for c in self.crossval]
         return out
@@ -403,3 +408,121 @@ class _Fold(NamedTuple):
     displacement: float | None
     converged: bool
     note: str
+
+
+#: the range of relaxation times τ = 3η/E searched for the damping, s (the upper end: ten
+#: times the log's duration), and the points of the first, coarse search
+TAU_MIN, TAU_POINTS = 1e-4, 13
+
+
+def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
+                     inertia: bool = True, marker_noise: float = MARKER_NOISE,
+                     length_noise: float = LENGTH_NOISE,
+                     progress: Callable[[int, int], None] | None = None) -> Identified:
+    """Fit the Kelvin–Voigt damping η (``[rod] damping``, Pa·s) to a readings log with time
+    stamps (:class:`~tendonsense.readings.Sample`, e.g. a step or a ramp of the tensions under
+    the known ``point_forces``): the motion is simulated from rest at the first row with the
+    log's tensions (linear between rows), and its tendon length changes and markers are fitted
+    to the measured ones, each weighted by its noise.
+
+    One parameter: a coarse search over τ = 3η/E from ``TAU_MIN`` (0.1 ms) to ten times the
+    log's duration, then Brent's method in log η between the best point's neighbours. Its
+    1-σ uncertainty is where χ² has risen by 1 on either side (half the interval; the profile
+    of the likelihood, no derivative needed). Rows skipped by the reader are left out."""
+    rows = [s for s in samples if not s.error]
+    if len(rows) < 3:
+        raise SnapshotError(f"damping needs a log of at least 3 good rows (got {len(rows)})")
+    t = np.array([np.nan if s.time is None else s.time for s in rows], float)
+    if not np.all(np.isfinite(t)):
+        raise SnapshotError("damping needs a time stamp (s) in every row: the log has no time "
+                            "column or an empty cell")
+    if np.any(np.diff(t) <= 0):
+        k = int(np.argmax(np.diff(t) <= 0)) + 1
+        raise SnapshotError(f"row {rows[k].row}: time {t[k]:g} s does not follow the row "
+                            f"before ({t[k - 1]:g} s): the rows must be in time order")
+    for noise, what in ((marker_noise, "marker noise"), (length_noise, "length noise")):
+        if not (np.isfinite(noise) and noise > 0):
+            raise ValueError(f"{what} must be a positive number of metres, got {noise}")
+    names = robot.tendon_names
+    measured = [n for n in names if n in rows[0].displacements]
+    markers = [m for m in robot.marker_names if m in rows[0].markers]
+    if not measured and not markers:
+        raise SnapshotError("the log has no displacement_<tendon> or marker columns: nothing "
+                            "to fit the damping to")
+    t = t - t[0]
+    schedule = {n: (t, np.array([s.tensions[n] for s in rows])) for n in names}
+    y_meas = np.array([[s.displacements[n] for n in measured] for s in rows])
+    p_meas = np.array([[s.markers[m] for m in markers] for s in rows]).reshape(len(rows), -1, 3)
+    start = solve(robot, rows[0].tensions, point_forces)
+    if not start.converged:
+        raise SnapshotError(f"the first row's static equilibrium (the motion's start) did not "
+                            f"converge: {start.note}")
+    E = robot.rod.young_modulus
+    evaluations = [0]
+
+    def misfit(log_eta):
+        """(χ², marker residuals, length residuals) of the motion with η = exp(log_eta)."""
+        sim = simulate(robot.with_parameters(damping=float(np.exp(log_eta))), schedule,
+                       point_forces, duration=t[-1], inertia=inertia, q0=start.q, at=t[1:])
+        evaluations[0] += 1
+        if not sim.ok:
+            return np.inf, None, None
+        dy = np.stack([sim.displacements[n] for n in measured], 1) - y_meas if measured \
+            else np.zeros((len(t), 0))
+        dp = np.stack([sim.markers[m] for m in markers], 1) - p_meas if markers \
+            else np.zeros((len(t), 0, 3))
+        chi2 = float(np.sum((dy / length_noise) ** 2) + np.sum((dp / marker_noise) ** 2))
+        return chi2, dp, dy
+
+    grid = np.log(np.geomspace(TAU_MIN, 10 * t[-1], TAU_POINTS) * E / 3)
+    chi2 = []
+    for k, g in enumerate(grid):
+        chi2.append(misfit(g)[0])
+        if progress is not None:
+            progress(k + 1, TAU_POINTS + 20)
+    chi2 = np.array(chi2)
+    if not np.any(np.isfinite(chi2)):
+        raise SnapshotError("the simulated motion did not converge at any damping")
+    best = int(np.nanargmin(np.where(np.isfinite(chi2), chi2, np.nan)))
+    finite = chi2[np.isfinite(chi2)]
+    if finite.max() - finite.min() < 1:
+        raise SnapshotError("damping cannot be identified from this log: over τ = "
+                            f"{TAU_MIN:g} s … {10 * t[-1]:g} s it changes the predicted readings "
+                            "by less than their noise (does the log have motion?)")
+    lo, hi = grid[max(best - 1, 0)], grid[min(best + 1, grid.size - 1)]
+    found = minimize_scalar(lambda g: misfit(g)[0], bounds=(lo, hi), method="bounded",
+                            options={"xatol": 1e-4})
+    x, chi2_min = float(found.x), float(found.fun)
+    edge = best in (0, grid.size - 1)
+
+    def crossing(direction):
+        """log η where χ² has risen by 1 on one side (±inf if it never does in the range)."""
+        inner = x
+        for g in (grid[grid > x] if direction > 0 else grid[grid < x][::-1]):
+            if misfit(g)[0] - chi2_min > 1:
+                return brentq(lambda v: misfit(v)[0] - chi2_min - 1, *sorted((inner, g)),
+                              xtol=1e-3)
+            inner = g
+        return direction * np.inf
+
+    eta = float(np.exp(x))
+    lo_eta, hi_eta = np.exp(crossing(-1)), np.exp(crossing(+1))
+    sigma = float(0.5 * (hi_eta - lo_eta)) if np.isfinite(hi_eta) else None
+    _, dp, dy = misfit(x)
+    initial = misfit(np.log(robot.rod.damping))[1:] if robot.rod.damping > 0 else (None, None)
+    if progress is not None:
+        progress(TAU_POINTS + 20, TAU_POINTS + 20)
+
+    def errors(dp, dy):
+        if dp is None:
+            return None, None
+        return (float(np.sqrt(np.mean(np.sum(dp ** 2, -1)))) if markers else None,
+                float(np.sqrt(np.mean(dy ** 2))) if measured else None)
+
+    note = (f"the best damping lies at the end of the range searched (τ = {TAU_MIN:g} s … "
+            f"{10 * t[-1]:g} s): the log does not pin it down" if edge else
+            "" if sigma is not None else "the log bounds the damping from below only (χ² "
+            "rises by less than 1 up to the end of the range searched)")
+    return Identified({"damping": eta}, *errors(dp, dy), *errors(*initial),
+                      bool(found.success) and not edge, evaluations[0],
+                      robot.with_parameters(damping=eta), sigma={"damping": sigma}, note=note)

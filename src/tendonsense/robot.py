@@ -100,12 +100,15 @@ class Robot:
     def replace(self, **changes) -> "Robot":
         return dataclasses.replace(self, **changes)
 
-    def with_parameters(self, young_modulus=None, density=None, friction=None) -> "Robot":
+    def with_parameters(self, young_modulus=None, density=None, friction=None,
+                        damping=None) -> "Robot":
         """A copy with other material parameters; ``friction`` is one μ for every tendon or a
         ``{tendon: μ}`` mapping for some of them."""
         rod = self.rod
         if young_modulus is not None:
             rod = dataclasses.replace(rod, young_modulus=float(young_modulus))
+        if damping is not None:
+            rod = dataclasses.replace(rod, damping=float(damping))
         if density is not None:
             rod = dataclasses.replace(rod, density=float(density))
         tendons = self.tendons
@@ -463,12 +466,13 @@ FITTED_HEADER_MARK = "# fitted by tendonsense identify"
 
 def fitted_toml(text: str, fitted: Robot, header: Sequence[str]) -> str:
     """The robot file ``text`` with the values of ``fitted`` written in place: ``[rod]``
-    ``young_modulus``, ``density``, ``poisson_ratio`` and each ``[[tendon]]``'s ``friction``
+    ``young_modulus``, ``density``, ``poisson_ratio``, ``damping`` and each ``[[tendon]]``'s
+    ``friction``
     (matched by the tendon's ``name``) become ``repr(float(value))``; every other byte -- keys,
     comments (also a trailing one on a rewritten line, kept at its column when it was
     aligned), blank lines, order -- stays as it was. A value already equal to the fitted one
     keeps its spelling. A key the file leaves out is added after the last key line of its
-    table unless the fitted value is the loader's default (friction 0). ``header`` lines go
+    table unless the fitted value is the loader's default (friction and damping 0). ``header`` lines go
     on top as ``# `` comments and a blank line, replacing the block of an earlier fit (comment
     lines from a first line starting with :data:`FITTED_HEADER_MARK`).
 
@@ -488,7 +492,8 @@ def fitted_toml(text: str, fitted: Robot, header: Sequence[str]) -> str:
     wanted: dict[tuple, tuple[float, float | None]] = {
         ("rod", "young_modulus"): (rod.young_modulus, None),
         ("rod", "poisson_ratio"): (rod.poisson_ratio, None),
-        ("rod", "density"): (rod.density, None)}
+        ("rod", "density"): (rod.density, None),
+        ("rod", "damping"): (rod.damping, 0.0)}
     entries = data.get("tendon", [])
     if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
         raise RobotFileError("robot file: tendon: must be an array of tables ([[tendon]])")

@@ -90,7 +90,7 @@ def _table(entries: Sequence, width: int, what: str):
 def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
              point_forces: Sequence = (), duration: float = 1.0, output_dt: float = 0.01,
              max_step: float = MAX_STEP, inertia: bool = True, q0=None,
-             sliding: Mapping[str, str] | None = None) -> Simulation:
+             sliding: Mapping[str, str] | None = None, at=None) -> Simulation:
     """Forward dynamics from rest at ``q0`` (default the straight rod) at t = 0, gravity and
     the given loads acting from t = 0, sampled every ``output_dt`` s up to ``duration``.
 
@@ -98,7 +98,8 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     and held after the last (tendons not named are slack); ``point_forces``: [(X, f)] with f
     a global force (N) or ``(times, forces (k, 3))``. TR-BDF2 steps of ``max_step`` s (halved
     where a solve fails); samples between steps by cubic Hermite interpolation of q and q̇.
-    ``inertia=False`` drops ``M q̈`` and
+    ``at``: sample at these times (s, increasing, in (0, duration]) instead of every
+    ``output_dt`` (e.g. a log's own time stamps). ``inertia=False`` drops ``M q̈`` and
     ``C q̇`` (the quasi-static limit with damping; needs ``[rod] damping`` > 0).
     ``sliding`` {tendon: in|out|follow}: the sense of a tendon's friction; ``follow`` (the
     default) as the estimators take it: pulled in while its tension rises, stuck when it
@@ -149,7 +150,14 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     model = model_for(robot)
     nq = model.nq
     q = np.zeros(nq) if q0 is None else np.asarray(q0, float).reshape(nq)
-    times = np.arange(1, int(np.floor(duration / output_dt + 1e-9)) + 1) * output_dt
+    if at is None:
+        times = np.arange(1, int(np.floor(duration / output_dt + 1e-9)) + 1) * output_dt
+    else:
+        times = np.asarray(at, float).reshape(-1)
+        if (times.size == 0 or not np.all(np.isfinite(times)) or times[0] <= 0
+                or np.any(np.diff(times) <= 0) or times[-1] > duration * (1 + 1e-12)):
+            raise ValueError("at: the sample times must be finite, increasing and in "
+                             "(0, duration]")
     start, run = integrator(model.structure, bool(inertia))
     state = start(q, np.zeros(nq), np.float64(0.0), np.float64(max_step), schedule,
                   model.values)
@@ -158,8 +166,7 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     parts = []
     for k in range(0, times.size, CHUNK):
         chunk = times[k:k + CHUNK]
-        pad = chunk[-1] + output_dt * np.arange(1, CHUNK - chunk.size + 1)
-        padded = np.concatenate([chunk, pad])
+        padded = np.concatenate([chunk, np.full(CHUNK - chunk.size, chunk[-1])])  # no steps
         state, out = run(state, padded, np.float64(max_step), schedule, model.values)
         parts.append([np.asarray(a)[:chunk.size] for a in out])
     qs, vs, mk, ys, ok, fine, states = (np.concatenate([[f], *(p[i] for p in parts)])
