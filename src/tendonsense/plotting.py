@@ -17,6 +17,7 @@ from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 
 from .forward import model_for  # noqa: E402
+from .inputs import EDGE  # noqa: E402
 from .kinematics import frames_fn  # noqa: E402
 from .result import Result  # noqa: E402
 from .robot import Robot  # noqa: E402
@@ -522,12 +523,22 @@ def calibration(fit, path):
 
 
 def simulation(sim, path, title: str = "simulated motion"):
-    """A simulated motion over time: the tensions (N), the tendon length changes (mm) and the
-    last marker's position relative to its start (mm); samples that did not converge shaded."""
+    """A simulated motion over time: the tensions (N; solid pulled in, dotted stuck, dashed
+    paid out), the tendon length changes (mm) and the last marker's position relative to its
+    start (mm); samples that did not converge shaded."""
     t = sim.time
     fig, axes = plt.subplots(3, 1, figsize=(7.5, 7), sharex=True)
     for n, T in sim.tensions.items():
-        axes[0].plot(t, T, label=n)
+        s = sim.friction_state[n]
+        phases = [(s >= 1 - EDGE, "-", n), (np.abs(s) < 1 - EDGE, ":", f"{n} stuck"),
+                  (s <= -1 + EDGE, "--", f"{n} paid out")]
+        color = None
+        for mask, style, label in phases:
+            if mask.any():  # each phase joined to the samples next to it
+                near = mask | np.roll(mask, 1) & (np.arange(t.size) > 0)
+                line, = axes[0].plot(t, np.where(near, T, np.nan), style, color=color,
+                                     label=label)
+                color = line.get_color()
     axes[0].set_ylabel("tension (N)")
     for n, y in sim.displacements.items():
         axes[1].plot(t, y * 1e3, label=n)

@@ -172,9 +172,8 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     qs, vs, mk, ys, ok, fine, states = (np.concatenate([[f], *(p[i] for p in parts)])
                                         for i, f in enumerate(first))
     t_all = np.concatenate([[0.0], times])
-    T_all = np.stack([np.interp(t_all, T_times, T[:, j, 0]) for j in range(len(names))], 1)
     return Simulation(
-        t_all, qs, vs, {n: T_all[:, j] for j, n in enumerate(names)},
+        t_all, qs, vs, {n: np.interp(t_all, T_times, T[:, j, 0]) for j, n in enumerate(names)},
         {n: ys[:, j] for j, n in enumerate(names)},
         {m: mk[:, i] for i, m in enumerate(robot.marker_names)}, ok & fine,
         {n: np.nan_to_num(states[:, j], nan=1.0) for j, n in enumerate(names)})
