@@ -101,7 +101,7 @@ def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
                                       [rows[j].tensions for j in stuck], noise, CHUNK,
                                       start=out[stuck[0]].x,
                                       history=FrictionHistory(prob.model.values.friction),
-                                      given=s):
+                                      given=s, persistent=False):
             got += chunk
         corners.append([e.magnitudes if e.converged else np.full(prob.n_magnitudes, np.nan)
                         for e in got])

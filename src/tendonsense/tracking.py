@@ -54,7 +54,7 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                   tensions: Sequence[Mapping[str, float]], noise: Noise = Noise(),
                   chunk: int = 100, values: Mapping[str, object] | None = None,
                   start: np.ndarray | None = None, history: FrictionHistory | None = None,
-                  given: np.ndarray | None = None):
+                  given: np.ndarray | None = None, persistent: bool = True):
     """:func:`estimate_series` as it goes: yields ``(first, estimates)`` for consecutive
     samples ``first, first + 1, …`` as each chunk is done. ``start``: the solution ``x`` of a
     reading near the first (e.g. the same row's earlier estimate) to warm-start from, instead
@@ -63,7 +63,11 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
     ``history``: every tendon's friction follows it along the series (compiled
     :func:`~tendonsense.fastpath.follower`; it is left as it stands after the last sample) and
     each estimate carries its ``friction_state``; ``given`` (N, n_t) states the log sets
-    (+1 in, −1 out), NaN where the history decides."""
+    (+1 in, −1 out), NaN where the history decides.
+
+    A sample the compiled scan fails is solved on its own (a rescue); with ``persistent``
+    False, only if the sample before it converged (a series that may have no solution over a
+    stretch, e.g. a friction band's far end, is not solved row by row in vain)."""
     robot, model = prob.robot, prob.model
     n = len(displacements)
     if (prob.located or values) and history is not None:
@@ -99,7 +103,7 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
         mu = np.asarray(model.values.friction, float)
     meas = list(prob.measured)
     valid = [k for k in range(n) if out[k] is None]
-    x0, seen_good, done = start, False, 0
+    x0, seen_good, last_failed, done = start, False, False, 0
     for at in range(0, len(valid), chunk):
         idx = valid[at:at + chunk]
         if x0 is None:  # the first sample solved from the straight rod (square problems)
@@ -125,12 +129,17 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                     out[k] = SampleEstimate(
                         tr.x[j, model.nq:], sigma, dict(zip(robot.marker_names, tr.markers[j])),
                         True, int(tr.iterations[j]), tr.x[j])
+                elif not persistent and last_failed:
+                    out[k] = SampleEstimate.failed(
+                        prob, "not estimated: the sample before did not converge either",
+                        tr.x[j])
                 else:
                     v = model.values._replace(**{name: a[k] for name, a in varied.items()})
                     out[k] = _from_result(estimate_problem(
                         prob, displacements[k], tensions[k], noise,
                         values=v if history is None else v._replace(friction=states[j] * mu),
                         budget=RESCUE_BUDGET if seen_good else None))
+                last_failed = not out[k].converged
                 if history is not None:
                     out[k] = replace(out[k], friction_state=states[j])
                     Band(*(a[j] for a in bands)).into(history)
