@@ -1,4 +1,5 @@
 import copy
+import csv
 from pathlib import Path
 
 import pytest
@@ -43,3 +44,11 @@ def robot_from(**tables):
 def uniform_rod(radius=0.01, length=0.25, E=1e6, nu=0.5, rho=0.0):
     return {"length": length, "radius": [radius, radius], "young_modulus": E,
             "poisson_ratio": nu, "density": rho}
+
+
+def write_columns(path, cols) -> None:
+    """A readings log: the columns {name: values} written as a CSV with a header."""
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(list(cols))
+        w.writerows(zip(*cols.values()))

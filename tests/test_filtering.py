@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, write_columns
 from tendonsense.estimation import PointForceUnknown, estimate, problem
 from tendonsense.filtering import MotionFilter
 from tendonsense.forward import solve
@@ -198,10 +198,7 @@ def test_cli_dynamic(tmp_path, slow_rod):
     cols = {k: v for k, v in sim.readings(1e-4, 0.01, seed=0).items()
             if k not in ("displacement_t2", "displacement_t3")}  # t1 alone is measured
     log = tmp_path / "log.csv"
-    with open(log, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(list(cols))
-        w.writerows(zip(*cols.values()))
+    write_columns(log, cols)
     out = tmp_path / "est.csv"
     r = _cli("estimate", toml, "--readings", log, "--unknown", f"{X},0,0,-1", "--dynamic",
              "--tension-noise", "0.01", "-o", out, "--quiet")

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, write_columns
 from tendonsense.forward import solve
 from tendonsense.identification import Snapshot, SnapshotError, identify, read_snapshots
 from tendonsense.robot import load_robot
@@ -236,10 +236,7 @@ def test_cli_identify_damping(tmp_path):
     damped = load_robot(ROOT / "examples" / "paper_prototype_damped.toml")
     _, _, cols = _step_log(damped)
     log = tmp_path / "step.csv"
-    with open(log, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(list(cols))
-        w.writerows(zip(*cols.values()))
+    write_columns(log, cols)
     toml = tmp_path / "robot.toml"
     toml.write_text(robot_to_toml(damped.with_parameters(damping=0.0)))
     run = lambda *a: subprocess.run(  # noqa: E731
