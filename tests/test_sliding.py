@@ -146,6 +146,36 @@ def test_play_operator_closed_form():
     np.testing.assert_allclose(h.step([1.0, 1.1]), [1.0, -1.0 + np.log(1.1) / 0.1])
 
 
+def test_a_stuck_state_does_not_drift_with_noise():
+    """A stuck tendon read 2,000 times with 1 % noise around a tension and then at it again,
+    its turning angle moving with each reading as the estimated shape does (1/μφ affine in
+    ln T), comes back to the state it had there: the state's change is summed by the
+    trapezoid rule between the last shape and this one, which telescopes (with this shape's
+    band alone the noise drifts it by about 0.3 here), in NumPy and in the compiled play
+    operator alike."""
+    import jax.numpy as jnp
+    from tendonsense.sliding import Band, FrictionHistory, play
+    mu, p0 = 0.4, np.log(3.0)
+
+    def phi(p):  # 1/(μφ) affine in ln T: φ grows with the tension
+        return np.array([1.0 / (mu * (1.4 - 1.5 * (p - p0)))])
+
+    readings = np.concatenate([[p0 + 0.3, p0],
+                               p0 + 0.01 * np.random.default_rng(0).standard_normal(2000), [p0]])
+    h = FrictionHistory([mu])
+    band = Band(jnp.full(1, jnp.nan), jnp.zeros(1), jnp.zeros(1))
+    states, compiled = [], []
+    for p in readings:
+        states.append(h.step(np.exp([p]), phi(p))[0])
+        s, band = play(band, jnp.array([mu]), jnp.exp(jnp.array([p])), jnp.asarray(phi(p)),
+                       jnp.full(1, jnp.nan))
+        compiled.append(float(s[0]))
+    assert states[0] == 1.0 and -1 < states[1] < 0.9  # pulled in, then stuck
+    assert np.all(np.abs(states[1:]) < 1)  # stuck throughout
+    assert states[-1] == pytest.approx(states[1], abs=1e-9)
+    np.testing.assert_allclose(compiled, states, rtol=0, atol=1e-12)
+
+
 def test_turning_is_the_turn_of_the_path(prototype):
     """φ of a tendon bent one way in one plane (no gravity: the tendon's moment alone; or the
     straight tapered rod) is the angle between its entry (the first disk's x axis) and its

@@ -7,7 +7,10 @@ over its turning angle φ, :func:`~tendonsense.tendons.turning`); paid out, it g
 ``w = ln T_anchor`` follows the play operator ``w ← clip(w, p − μφ, p + μφ)`` of ``p = ln T``
 (the reading). The state ``s = (p − w) / (μφ)`` ∈ [−1, 1] (+1 pulled in, −1 paid out, stuck
 between) signs the Capstan exponent: the model is solved with friction ``s μ``
-(:func:`~tendonsense.inputs.friction_signs` for the three named directions).
+(:func:`~tendonsense.inputs.friction_signs` for the three named directions). With φ fixed
+that is the play operator on ``w``; the state itself is kept and moved by ``Δs = Δp / (μφ)``
+from reading to reading, ``1/(μφ)`` by the trapezoid rule over the last shape and this one,
+so a change of shape alone keeps it.
 """
 
 from __future__ import annotations
@@ -77,6 +80,7 @@ class FrictionHistory:
         turning angles of its shape (None: the last shape's); ``given`` {tendon index:
         in|out|stuck} from the log (in and out set the state, stuck keeps the history's)."""
         T = np.asarray(tensions, float)
+        last = self.mu * self.phi
         if phi is not None:
             self.phi = np.asarray(phi, float)
         band = self.mu * self.phi
@@ -84,7 +88,7 @@ class FrictionHistory:
         p = np.log(np.where(live, T, 1.0))
         rise = p - self.p
         with np.errstate(divide="ignore", invalid="ignore"):  # no band: in or out at once
-            change = np.where(band > 0, rise / np.where(band > 0, band, 1.0),
+            change = np.where(band > 0, rise * _per_width(np, last, band),
                               np.sign(rise) * np.inf)
         # the state moves within ±(1 + margin/band) and reads clipped to ±1: a reading must
         # pass the band's edge by the margin to move the anchor's tension
@@ -98,6 +102,15 @@ class FrictionHistory:
         u = np.where(live, u, wide)
         self.s, self.p = np.where(live, u, np.nan), p
         return np.clip(u, -1.0, 1.0)
+
+
+def _per_width(xp, last, width):
+    """``1 / (μφ)`` for the state's change ``Δs = Δ ln T / (μφ)`` over one reading, by the
+    trapezoid rule between the last shape's band ``last`` and this one's ``width`` (> 0): a
+    reading's noise moves φ with ln T, and the rule at either end alone would sum that
+    correlation into a drift of the stuck state (``c σ² / μφ`` a reading); this one
+    telescopes. ``last`` ≤ 0 (no shape yet): ``width`` alone."""
+    return 0.5 * (1.0 / width + 1.0 / xp.where(last > 0, last, width))
 
 
 class Band(NamedTuple):
@@ -125,7 +138,8 @@ def play(band: Band, mu, tensions, phi, given):
     p = jnp.log(jnp.where(live, tensions, 1.0))
     rise, width = p - band.p, mu * phi
     wide = width > 0
-    change = jnp.where(wide, rise / jnp.where(wide, width, 1.0), jnp.sign(rise) * jnp.inf)
+    change = jnp.where(wide, rise * _per_width(jnp, mu * band.phi, jnp.where(wide, width, 1.0)),
+                       jnp.sign(rise) * jnp.inf)
     s = jnp.where(jnp.isnan(band.s), 1.0,
                   jnp.clip(band.s + jnp.nan_to_num(change, nan=0.0), -1.0, 1.0))
     s = jnp.where(live, jnp.where(jnp.isnan(given), s, given), 1.0)
