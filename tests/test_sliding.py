@@ -96,6 +96,41 @@ def test_stuck_gives_a_range_that_holds_the_truth(prototype):
     assert abs(pulled.magnitudes[0] - force) > 0.05 * force
 
 
+def test_a_band_end_without_equilibrium_leaves_the_range_open(prototype):
+    """Released to 1.9 N under 65 gF at L/2, t1 stuck a little past the middle of its band
+    (the motion benchmark's last hold): toward the paid-out end the estimate grows without
+    bound (the model has no equilibrium there), so the range is open above, from the
+    pulled-in end's value; the note names the end, JSON gives null, the text "at least"."""
+    from tendonsense.sliding import band_range
+    truth = prototype.replace(tendons=tuple(
+        dataclasses.replace(td, friction=-0.285 * td.friction) if td.name == "t1" else td
+        for td in prototype.tendons))
+    W, X = 0.065 * 9.81, 0.125
+    y = {"t1": solve(truth, {"t1": 1.9}, [(X, (0.0, 0.0, -W))]).displacements["t1"]}
+    unknown = [PointForceUnknown(X, (0, 0, -1))]
+    stuck = estimate(prototype, y, {"t1": 1.9}, unknown, sliding={"t1": "stuck"})
+    (low, high), = stuck.extra["magnitude_range"]
+    pulled = estimate(prototype, y, {"t1": 1.9}, unknown)
+    assert stuck.converged and high == np.inf and low < W < 2 * W
+    assert low == pytest.approx(pulled.magnitudes[0], abs=1e-9)
+    assert "t1 out" in stuck.extra["note"]
+    r = _cli("estimate", PROTOTYPE, "--displacement", f"t1={y['t1']!r}", "--tension", "t1=1.9",
+             "--unknown", f"{X},0,0,-1", "--sliding", "t1=stuck")
+    assert r.returncode == 0 and "at least" in r.stdout, r.stdout + r.stderr
+    r = _cli("estimate", PROTOTYPE, "--displacement", f"t1={y['t1']!r}", "--tension", "t1=1.9",
+             "--unknown", f"{X},0,0,-1", "--sliding", "t1=stuck", "--json")
+    assert json.loads(r.stdout)["magnitude_range"] == [[pytest.approx(low), None]]
+    # the rule itself: one stuck tendon's failed end is on the side away from the other end;
+    # with more stuck tendons (or both ends failed) both sides are open
+    nan, inf = np.nan, np.inf
+    np.testing.assert_array_equal(band_range([1.0], [[2.0], [nan]]), [[-inf, 2.0]])
+    np.testing.assert_array_equal(band_range([1.0], [[nan], [0.5]]), [[0.5, inf]])
+    np.testing.assert_array_equal(band_range([1.0], [[nan], [nan]]), [[-inf, inf]])
+    np.testing.assert_array_equal(band_range([1.0], [[2.0], [0.5]]), [[0.5, 2.0]])
+    np.testing.assert_array_equal(band_range([1.0], [[2.0], [0.5], [nan], [3.0]]),
+                                  [[-inf, inf]])
+
+
 def _cli(*args):
     return subprocess.run([sys.executable, "-m", "tendonsense.cli", *map(str, args)],
                           capture_output=True, text=True)

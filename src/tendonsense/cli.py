@@ -916,6 +916,17 @@ def magnitude_text(u, value: float, sigma=None) -> str:
     return f"{value:.4g}" + (f" ± {sigma:.2g} (1 σ)" if sigma is not None else "")
 
 
+def range_text(u, low: float, high: float) -> str:
+    """A magnitude's range over a friction band, open where it is infinite."""
+    if np.isfinite(low) and np.isfinite(high):
+        return f"between {magnitude_text(u, low)} and {magnitude_text(u, high)}"
+    if np.isfinite(low):
+        return f"at least {magnitude_text(u, low)}"
+    if np.isfinite(high):
+        return f"at most {magnitude_text(u, high)}"
+    return "unbounded"
+
+
 def _print_result(result, as_json: bool, title: str, robot, unknowns=()):
     if as_json:
         print(json.dumps(result.to_json()))
@@ -934,10 +945,9 @@ def _print_result(result, as_json: bool, title: str, robot, unknowns=()):
             u = unknowns[i] if i < len(unknowns) else None
             label = unknown_label(u) if u is not None else f"magnitude {i + 1}"
             if "magnitude_range" in result.extra:  # a stuck tendon: the range, not one value
-                low, high = result.extra["magnitude_range"][i]
-                print(f"  {label}: between {magnitude_text(u, low)} and "
-                      f"{magnitude_text(u, high)} (a stuck tendon; "
-                      f"{magnitude_text(u, m)} at the middle of its friction band)")
+                print(f"  {label}: {range_text(u, *result.extra['magnitude_range'][i])} "
+                      f"(a stuck tendon; {magnitude_text(u, m)} at the middle of its friction "
+                      "band)")
             else:
                 print(f"  {label}: {magnitude_text(u, m, s)}")
             X = result.extra.get("locations", [None] * (i + 1))[i]

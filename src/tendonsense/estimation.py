@@ -26,6 +26,7 @@ from .model import Values
 from .problem import Problem, _jacobians_fn, problem, reduced_jacobians  # noqa: F401 (API)
 from .result import Result
 from .robot import Robot
+from .sliding import band_range
 from .statics import Drive, NewtonResult, Unknowns, shape_outputs, solve_system
 
 
@@ -120,7 +121,7 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
     slides, which sets the sense of its friction (SPEC §5). A stuck tendon's tension profile
     is anywhere between the two: the result is the estimate at the middle of that band
     (no friction in it) with ``extra['magnitude_range']`` ``[[low, high], …]``, the estimates at
-    its ends.
+    its ends (±inf on the side of an end without an equilibrium, said in ``extra['note']``).
 
     ``x0`` (a previous result's ``extra['x']``) warm-starts the solve. The result carries
     ``magnitudes`` (N for point forces, a scale for gravity), their 1-σ band ``sigma`` for
@@ -136,15 +137,21 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
                            values._replace(friction=values.friction * signs))
     if not stuck:
         return mid
-    ends = []
+    ends, open_ends = [], []
     for combo in itertools.product((1.0, -1.0), repeat=len(stuck)):  # the band's corners
         signs[stuck] = combo
-        ends.append(estimate_problem(prob, displacements, tensions, noise, mid.extra["x"],
-                                     values._replace(friction=values.friction * signs)))
-    m = np.array([mid.magnitudes] + [r.magnitudes for r in ends])
-    return dataclasses.replace(
-        mid, converged=mid.converged and all(r.converged for r in ends),
-        extra={**mid.extra, "magnitude_range": np.stack([m.min(0), m.max(0)], axis=1)})
+        end = estimate_problem(prob, displacements, tensions, noise, mid.extra["x"],
+                               values._replace(friction=values.friction * signs))
+        ends.append(end.magnitudes if end.converged else np.full(prob.n_magnitudes, np.nan))
+        if not end.converged:
+            open_ends.append(", ".join(f"{robot.tendon_names[k]} {'in' if c > 0 else 'out'}"
+                                       for k, c in zip(stuck, combo)))
+    extra = {**mid.extra, "magnitude_range": band_range(mid.magnitudes, ends)}
+    if open_ends and mid.converged:
+        extra["note"] = "; ".join(filter(None, [extra.get("note"), (
+            f"no equilibrium at the friction band's end ({' / '.join(open_ends)}): the range "
+            "is open on that side")]))
+    return dataclasses.replace(mid, extra=extra)
 
 
 def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Noise(),

@@ -21,7 +21,7 @@ from .readings import (ReadingsError, Sample, has_time, located, output_header, 
                        output_rows, parse_header, parse_row, read_readings, with_sliding,
                        write_csv_atomic)
 from .robot import Robot
-from .sliding import FrictionHistory
+from .sliding import FrictionHistory, band_range
 from .tracking import SampleEstimate, series_chunks
 
 #: samples per compiled scan of a file log
@@ -106,8 +106,8 @@ def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
         corners.append([e.magnitudes if e.converged else np.full(prob.n_magnitudes, np.nan)
                         for e in got])
     for i, j in enumerate(stuck):
-        m = np.array([c[i] for c in corners] + [out[j].magnitudes])
-        out[j] = replace(out[j], magnitude_range=np.stack([m.min(0), m.max(0)], axis=1))
+        out[j] = replace(out[j], magnitude_range=band_range(out[j].magnitudes,
+                                                            [c[i] for c in corners]))
     return out
 
 

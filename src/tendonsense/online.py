@@ -19,7 +19,7 @@ from .forward import INADMISSIBLE
 from .inputs import EDGE, Noise, direction, sliding as check_sliding
 from .problem import Problem, band
 from .result import SampleEstimate
-from .sliding import FIXED_POINT, STATE_TOL, FrictionHistory, turning_program
+from .sliding import FIXED_POINT, STATE_TOL, FrictionHistory, band_range, turning_program
 from .statics import solve_system
 
 #: evaluations of the solve from the straight rod that a sample the fast path could not
@@ -173,10 +173,11 @@ class OnlineEstimator:
     def _band_range(self, est, state, stuck, T, y) -> np.ndarray:
         """(n, 2) the range of the magnitudes over the stuck tendons' band: each end followed
         from its own last estimate (the first time from the sample's estimate, or a solve from
-        the straight rod with a fixed ``rescue_budget``); NaN until an end is found."""
+        the straight rod with a fixed ``rescue_budget``); open on the side of an end not
+        found (:func:`~tendonsense.sliding.band_range`)."""
         prob = self.problem
         drive = self._ref.drive(T, y[list(prob.measured)])
-        found = [est.magnitudes]
+        found = []
         for signs in itertools.product((-1.0, 1.0), repeat=len(stuck)):
             s = state.copy()
             s[stuck] = signs
@@ -195,8 +196,7 @@ class OnlineEstimator:
             else:
                 self._corners.pop(signs, None)
                 found.append(np.full(prob.n_magnitudes, np.nan))
-        m = np.array(found)
-        return np.stack([m.min(0), m.max(0)], axis=1)
+        return band_range(est.magnitudes, found)
 
     def _sample(self, start, T, y, displacements, tensions, values) -> SampleEstimate:
         """One sample on the fast path with ``values``, rescued if it fails."""

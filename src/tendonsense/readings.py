@@ -331,7 +331,7 @@ def output_row(robot: Robot, s: Sample, r: SampleEstimate | None, n_unknowns: in
             for v in (r.locations[k], r.location_sigma[k])]
     if sliding:
         row += list(r.sliding) if r.sliding else ["in"] * len(robot.tendon_names)
-        row += ([repr(float(v)) if np.isfinite(v) else "" for v in r.magnitude_range.ravel()]
+        row += ([repr(float(v)) if not np.isnan(v) else "" for v in r.magnitude_range.ravel()]
                 if len(r.magnitude_range) else [""] * (2 * n_unknowns))
     row += [repr(float(v)) for m in markers for v in r.markers[m]]
     row.append("true")

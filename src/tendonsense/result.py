@@ -52,13 +52,14 @@ def _plain(v):
     if isinstance(v, (list, tuple)):
         return [_plain(x) for x in v]
     if isinstance(v, np.ndarray) or hasattr(v, "__array__"):
-        return np.asarray(v, float).tolist()
+        a = np.asarray(v, float)
+        return a.tolist() if np.isfinite(a).all() else _plain(a.tolist())
     if isinstance(v, (bool, np.bool_)):
         return bool(v)
     if isinstance(v, (int, np.integer)):
         return int(v)
     if isinstance(v, (float, np.floating)):
-        return float(v)
+        return float(v) if np.isfinite(v) else None  # JSON has no NaN or infinity
     return v
 
 

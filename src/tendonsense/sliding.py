@@ -113,6 +113,26 @@ def _per_width(xp, last, width):
     return 0.5 * (1.0 / width + 1.0 / xp.where(last > 0, last, width))
 
 
+def band_range(middle, corners) -> np.ndarray:
+    """(n, 2) ``[low, high]`` of n magnitudes over the stuck tendons' friction band, from
+    their estimate at its ``middle`` (n,) and at its ``corners`` (k, n; every stuck tendon
+    pulled in or paid out, NaN where no equilibrium was found). A corner without one leaves
+    the range open on its side (±inf: toward it the magnitudes grow until the model has no
+    equilibrium): with one stuck tendon the side away from the other corner, with more (or
+    both corners failed) both sides."""
+    middle, corners = np.asarray(middle, float), np.atleast_2d(np.asarray(corners, float))
+    m = np.vstack([middle, corners])
+    low, high = np.nanmin(m, axis=0), np.nanmax(m, axis=0)
+    failed = np.isnan(corners).any(axis=1)
+    if failed.any():
+        if len(corners) == 2 and not failed.all():
+            above = corners[~failed][0] >= middle  # the failed corner lies the other way
+            low, high = np.where(above, -np.inf, low), np.where(above, high, np.inf)
+        else:
+            low, high = np.full_like(low, -np.inf), np.full_like(high, np.inf)
+    return np.stack([low, high], axis=1)
+
+
 class Band(NamedTuple):
     """:class:`FrictionHistory`'s state as arrays, carried along a compiled scan
     (:func:`~tendonsense.fastpath.follower`): each tendon's last state (NaN: slack or no
