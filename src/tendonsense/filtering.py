@@ -87,9 +87,9 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int) -> Pr
     """The compiled ``step(state, t, drive, unknowns, values, tuning, markers) -> (state, row)``
     (``markers``: the markers' :class:`~tendonsense.model.PointSet`, made once): one
     predict and update at time t with the tensions and measured length changes of ``drive``;
-    ``row`` is ``(x, σ_z, markers, φ, ok)`` (φ the tendons' turning angles at the estimate;
-    ok: finite, later than the state and in the model's strain range). A sample that is not
-    ok returns the state unchanged.
+    ``row`` is ``[x, σ_z, markers, φ, ok]`` packed in one vector (one transfer to the host;
+    φ the tendons' turning angles at the estimate; ok (1 or 0): finite, later than the state
+    and in the model's strain range). A sample that is not ok returns the state unchanged.
 
     The prediction is one linearly implicit Euler step (the implicit Euler equation
     linearised at the last estimate; no iteration, so that every sample's work is fixed)."""
@@ -149,8 +149,8 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int) -> Pr
         new = FilterState(t, x, P, E_q, y_q, (state.column + k) % nq)
         new = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, state)
         sigma = jnp.sqrt(jnp.maximum(jnp.diagonal(P)[nq:], 0.0))
-        return new, (x, sigma, positions(mk, values.marker_offsets),
-                     turning(structure, values, x[:nq]), ok)
+        return new, jnp.concatenate([x, sigma, jnp.ravel(positions(mk, values.marker_offsets)),
+                                     turning(structure, values, x[:nq]), ok[None]])
 
     return Program(step, "filter_step", (structure, measured, n_z))
 
@@ -236,7 +236,7 @@ class MotionFilter:
         friction = None
         if history is not None and not history.pulled(T, given):
             friction = history.step(T, None, given)  # at the last shape's turning angles
-            values = values._replace(friction=jax.device_put(friction * history.mu))
+            values = values._replace(friction=friction * history.mu)  # copied in with the call
         if state is None:
             start = estimate_problem(prob, displacements, tensions, self.noise,
                                      values=values)
@@ -256,7 +256,10 @@ class MotionFilter:
         if self._call is None:
             self._call = self._step.executable(*args)
         new, row = self._call(*args)
-        x, sigma, markers, phi, ok = jax.device_get(row)
+        n_x, n_m = prob.model.nq + prob.n_z, len(prob.robot.markers)
+        x, sigma, markers, phi, ok = np.split(np.asarray(row), np.cumsum(
+            [n_x, prob.n_z, 3 * n_m, prob.model.n_tendons]))
+        markers, ok = markers.reshape(n_m, 3), bool(ok[0])
         if not ok:
             return self._lost("the step left the model's strain range or did not stay finite")
         self._state, self._t, self._failures = new, float(time), 0
