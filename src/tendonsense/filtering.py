@@ -40,7 +40,7 @@ from .kinematics import poses, positions
 from .model import PointSet, Structure, Values, points_at
 from .problem import Problem, _jacobians_fn
 from .result import SampleEstimate
-from .sliding import FrictionHistory
+from .sliding import NOISE_REACH, FrictionHistory, reach
 from .statics import CACHE_SIZE, Drive, Unknowns, admissible, terms
 from .tendons import length_changes, turning
 
@@ -58,7 +58,7 @@ RESTART = 5
 
 #: the friction history's margin in ln T, in units of the tension's read-out noise: a
 #: tendon's friction turns only on a change of tension the noise cannot make
-MARGIN = 3.0
+MARGIN = NOISE_REACH
 
 
 class FilterState(NamedTuple):
@@ -272,8 +272,9 @@ class MotionFilter:
         self._history = history
         if friction is None:
             return est
+        edge = reach(history.mu, phi, self.noise.tension)
         return replace(est, friction_state=friction, sliding=tuple(
-            "stuck" if given.get(k) == "stuck" else direction(v)
+            "stuck" if given.get(k) == "stuck" else direction(v, edge[k])
             for k, v in enumerate(friction)))
 
     def _at_rest(self, t, x, P, drive) -> FilterState:

@@ -15,13 +15,13 @@ import numpy as np
 
 from .estimation import Noise, Unknown, problem
 from .filtering import WALK
-from .inputs import EDGE, check_unknowns, direction
+from .inputs import check_unknowns, direction
 from .online import OnlineEstimator
 from .readings import (ReadingsError, Sample, has_time, located, output_header, output_row,
                        output_rows, parse_header, parse_row, read_readings, with_sliding,
                        write_csv_atomic)
 from .robot import Robot
-from .sliding import FrictionHistory, band_range
+from .sliding import FrictionHistory, band_range, reach, turning_program
 from .tracking import SampleEstimate, series_chunks
 
 #: samples per compiled scan of a file log
@@ -80,12 +80,21 @@ def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
     (:class:`~tendonsense.sliding.FrictionHistory`) with each tendon's direction, and where one
     is stuck the range of the magnitudes over its band: the stuck rows estimated again as a
     series with each stuck tendon pulled in and paid out."""
-    names = prob.robot.tendon_names
+    names, model = prob.robot.tendon_names, prob.model
     states = np.array([e.friction_state for e in estimates])
-    stuck_of = (np.abs(states) < 1 - EDGE) | np.array(
-        [[r.sliding.get(t) == "stuck" for t in names] for r in rows])
-    out = [replace(e, sliding=tuple("stuck" if stuck_of[j, k] else direction(v)
-                                    for k, v in enumerate(states[j])))
+    # each row's turning angles, for the noise's reach into its bands (one scan's length)
+    shapes = np.array([e.x[:model.nq] if e.converged else np.zeros(model.nq)
+                       for e in estimates])
+    phi = np.asarray(turning_program(model.structure)(
+        np.concatenate([shapes, np.zeros(((CHUNK - len(shapes) % CHUNK) % CHUNK, model.nq))]),
+        model.values))[:len(shapes)]
+    edge = reach(model.values.friction, phi, noise.tension)
+    labels = np.array([[direction(v, edge[j, k]) for k, v in enumerate(states[j])]
+                       for j in range(len(states))]).reshape(states.shape)
+    stuck_of = (labels == "stuck") | np.array(
+        [[r.sliding.get(t) == "stuck" for t in names] for r in rows]).reshape(states.shape)
+    out = [replace(e, sliding=tuple("stuck" if stuck_of[j, k] else str(labels[j, k])
+                                    for k in range(len(names))))
            for j, e in enumerate(estimates)]
     stuck = [j for j in range(len(out)) if stuck_of[j].any() and out[j].converged]
     if not stuck:

@@ -16,10 +16,11 @@ from .estimation import estimate_problem
 from .fastpath import Track, stepper, unpack_row
 from .filtering import WALK, MotionFilter
 from .forward import INADMISSIBLE
-from .inputs import EDGE, Noise, direction, sliding as check_sliding
+from .inputs import Noise, direction, sliding as check_sliding
 from .problem import Problem, band
 from .result import SampleEstimate
-from .sliding import FIXED_POINT, STATE_TOL, FrictionHistory, band_range, turning_program
+from .sliding import (FIXED_POINT, STATE_TOL, FrictionHistory, band_range, reach,
+                      turning_program)
 from .statics import solve_system
 
 #: evaluations of the solve from the straight rod that a sample the fast path could not
@@ -155,10 +156,11 @@ class OnlineEstimator:
             if np.max(np.abs(new - state)) <= STATE_TOL:
                 break
             state = new
-        stuck = [k for k in range(len(names)) if abs(state[k]) < 1 - EDGE
-                 or given.get(k) == "stuck"]
+        edge = reach(self._history.mu, self._history.phi, self.noise.tension)
+        labels = [direction(v, edge[k]) for k, v in enumerate(state)]
+        stuck = [k for k in range(len(names)) if labels[k] == "stuck" or given.get(k) == "stuck"]
         est = replace(est, friction_state=state, sliding=tuple(
-            "stuck" if k in stuck else direction(v) for k, v in enumerate(state)))
+            "stuck" if k in stuck else labels[k] for k in range(len(names))))
         if not stuck:
             self._corners = {}
             return est

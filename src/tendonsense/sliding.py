@@ -32,6 +32,19 @@ from .tendons import turning
 #: passes to settle friction states with the shapes they give, and the tolerance on a state
 FIXED_POINT, STATE_TOL = 10, 1e-4
 
+#: standard deviations of the tensions' read-out noise within which a state cannot be told
+#: from its band's edge (:func:`reach`)
+NOISE_REACH = 3.0
+
+
+def reach(mu, phi, tension_noise: float) -> np.ndarray:
+    """How far into its band, in units of the state, read-out noise of relative standard
+    deviation ``tension_noise`` can take a tendon of friction ``mu`` turning by ``phi``:
+    ``NOISE_REACH σ / (μφ)`` (0 without a band: the state is then ±1). A state that close to
+    ±1 is labelled by the edge (in or out, :func:`~tendonsense.inputs.direction`), not stuck."""
+    band = np.asarray(mu, float) * np.asarray(phi, float)
+    return np.where(band > 0, NOISE_REACH * tension_noise / np.where(band > 0, band, 1.0), 0.0)
+
 
 @lru_cache(maxsize=CACHE_SIZE)
 def turning_program(structure: Structure) -> Program:
