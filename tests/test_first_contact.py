@@ -107,13 +107,17 @@ def test_a_log_row_breaking_a_rule_is_marked_and_the_rest_estimated(prototype, t
     y = solve(prototype, {"t1": 2.0}, [(0.25, (0, 0, -0.1))]).displacements["t1"]
     log = tmp_path / "log.csv"
     log.write_text("time,tension_t1,tension_t2,tension_t3,displacement_t1\n"
-                   f"0,2.0,0,0,{y!r}\n0.1,2.0,0,0,-5\n0.2,-2.0,0,0,{y!r}\n0.3,2.0,0,0,{y!r}\n")
+                   f"0,2.0,0,0,{y!r}\n0.1,2.0,0,0,-5\n0.2,-2.0,0,0,{y!r}\n0.3,2.0,0,0,{y!r}\n"
+                   f"0.4,2.O,0,0,{y!r}\n0.5,,0,0,{y!r}\n0.6,2.0,0,0,nan\n")
     p = cli("estimate", PROTOTYPE, "--readings", log, "--unknown", "0.25,0,0,-1")
     assert p.returncode == 3
     rows = list(csv.DictReader(p.stdout.splitlines()))
-    assert [r["converged"] for r in rows] == ["true", "false", "false", "true"]
+    assert [r["converged"] for r in rows] == ["true", "false", "false", "true"] + ["false"] * 3
     assert "pulls in more" in rows[1]["note"] and "negative" in rows[2]["note"]
     assert float(rows[3]["magnitude_1"]) == pytest.approx(0.1, rel=1e-6)
+    assert rows[4]["note"].endswith("column tension_t1: '2.O' is not a number")
+    assert rows[5]["note"].endswith("column tension_t1: missing value")
+    assert rows[6]["note"].endswith("column displacement_t1: 'nan' is not a finite number")
 
 
 def test_a_header_only_log_is_an_error(tmp_path):

@@ -22,6 +22,11 @@ from .robot import Robot
 AXES = ("x", "y", "z")
 
 
+#: what ``float()`` reads as not finite
+_NON_FINITE = {"nan", "+nan", "-nan", "inf", "+inf", "-inf", "infinity", "+infinity",
+               "-infinity"}
+
+
 def _number(text: str) -> float:
     """The number in a CSV cell, NaN if it is not one."""
     try:
@@ -127,7 +132,9 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
                 continue
             v = _number(text)
             if not math.isfinite(v):
-                error = f"column {col}: {'missing' if not text.strip() else repr(text)} value"
+                error = (f"column {col}: missing value" if not text.strip() else
+                         f"column {col}: {text.strip()!r} is not a "
+                         f"{'finite ' if text.strip().lower() in _NON_FINITE else ''}number")
                 break
             kind, _, name = col.partition("_")
             error = (tension_error(name, v) if kind == "tension" else displacement_error(
