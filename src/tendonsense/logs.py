@@ -15,7 +15,7 @@ import numpy as np
 
 from .estimation import Noise, Unknown, problem
 from .filtering import WALK
-from .inputs import check_unknowns, direction
+from .inputs import EDGE, check_unknowns, direction
 from .online import OnlineEstimator
 from .readings import (ReadingsError, Sample, has_time, located, output_header, output_row,
                        output_rows, parse_header, parse_row, read_readings, with_sliding,
@@ -82,13 +82,16 @@ def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
     series with each stuck tendon pulled in and paid out."""
     names, model = prob.robot.tendon_names, prob.model
     states = np.array([e.friction_state for e in estimates])
-    # each row's turning angles, for the noise's reach into its bands (one scan's length)
-    shapes = np.array([e.x[:model.nq] if e.converged else np.zeros(model.nq)
-                       for e in estimates])
-    phi = np.asarray(turning_program(model.structure)(
-        np.concatenate([shapes, np.zeros(((CHUNK - len(shapes) % CHUNK) % CHUNK, model.nq))]),
-        model.values))[:len(shapes)]
-    edge = reach(model.values.friction, phi, noise.tension)
+    # the noise's reach into the bands of the rows inside one, from their turning angles
+    inside = np.flatnonzero((np.abs(states) < 1 - EDGE).any(axis=1))
+    edge = np.zeros(states.shape)
+    if inside.size:
+        shapes = np.array([estimates[j].x[:model.nq] if estimates[j].converged
+                           else np.zeros(model.nq) for j in inside])
+        phi = np.asarray(turning_program(model.structure)(  # one scan's length: one program
+            np.concatenate([shapes, np.zeros(((CHUNK - len(shapes) % CHUNK) % CHUNK,
+                                              model.nq))]), model.values))[:len(shapes)]
+        edge[inside] = reach(model.values.friction, phi, noise.tension)
     labels = np.array([[direction(v, edge[j, k]) for k, v in enumerate(states[j])]
                        for j in range(len(states))]).reshape(states.shape)
     stuck_of = (labels == "stuck") | np.array(
