@@ -213,3 +213,54 @@ def test_programs_compile_with_the_packages_options(tmp_path, monkeypatch, kept)
                         lambda: {"xla_cpu_no_such_option_anywhere": True})
     out = compiled.Program(lambda a: jnp.sin(a) * 2, "options_unknown", kept)(x)
     np.testing.assert_allclose(out, 2 * np.sin(x), rtol=1e-15)
+
+
+def test_factorisations_match_lapack():
+    """:mod:`tendonsense.linalg`'s LU, Cholesky, solve and determinant (XLA operations only)
+    against NumPy's LAPACK, pivoting included."""
+    import jax
+    from tendonsense import linalg
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 7, 40):
+        A = rng.normal(size=(n, n))
+        A[0, 0] = 0.0 if n > 1 else 1.0  # a zero first pivot: the rows must be swapped
+        B = rng.normal(size=(n, 3))
+        np.testing.assert_allclose(jax.jit(linalg.solve)(A, B), np.linalg.solve(A, B),
+                                   rtol=1e-9, atol=1e-11)
+        np.testing.assert_allclose(jax.jit(linalg.det)(A), np.linalg.det(A), rtol=1e-10)
+        S = A @ A.T + n * np.eye(n)
+        np.testing.assert_allclose(jax.jit(linalg.cholesky)(S), np.linalg.cholesky(S),
+                                   rtol=1e-12, atol=1e-12)
+    assert not np.all(np.isfinite(linalg.cholesky(-np.eye(2))))
+
+
+NO_SCIPY_SCRIPT = """
+import sys
+from tendonsense.cli import main
+robot = sys.argv[1]
+for argv in (["solve", robot, "--tension", "t1=2.0"],
+             ["estimate", robot, "--displacement", "t1=-0.005", "--tension", "t1=2.1",
+              "--unknown", "0.25,0,0,-1"]):
+    assert main(argv) == 0
+if sys.argv[2] == "lapack":  # a kept program that calls LAPACK still loads and runs
+    import jax.numpy as jnp, numpy as np
+    from tendonsense import compiled
+    out = compiled.Program(lambda a: jnp.linalg.solve(a, jnp.ones(2)), "lapack_test", 0)(
+        2.0 * np.eye(2))
+    assert np.allclose(out, 0.5), out
+print(sorted(m for m in sys.modules if m.split(".")[0] == "scipy")[:3])
+"""
+
+
+def test_a_warm_start_imports_no_lapack(tmp_path):
+    """The solvers' kept programs call no LAPACK kernel, so a warm ``solve`` or ``estimate``
+    does not import SciPy's LAPACK (0.2–0.3 s of every start-up); a kept program that does
+    call one loads it (issue 24)."""
+    env = dict(os.environ, TENDONSENSE_CACHE_DIR=str(tmp_path))
+    robot = str(Path(__file__).parents[1] / "examples" / "paper_prototype.toml")
+    outs = [subprocess.run([sys.executable, "-c", NO_SCIPY_SCRIPT, robot, what], env=env,
+                           capture_output=True, text=True, timeout=600)
+            for what in ("lapack", "lapack", "none")]  # compiled, then loaded twice
+    assert all(o.returncode == 0 for o in outs), [o.stderr[-2000:] for o in outs]
+    assert outs[1].stdout.splitlines()[-1] != "[]"  # the LAPACK program imported it
+    assert outs[2].stdout.splitlines()[-1] == "[]", outs[2].stdout[-500:]

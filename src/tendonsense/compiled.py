@@ -137,15 +137,18 @@ def _kept(path: Path):
 
 
 def _serialize(compiled) -> bytes:
+    """The executable and whether it calls LAPACK (most do not: :mod:`tendonsense.linalg`)."""
     from jax.experimental.serialize_executable import serialize
-    return pickle.dumps(serialize(compiled))
+    return pickle.dumps(("lapack" in compiled.as_text(), serialize(compiled)))
 
 
 def _deserialize(data: bytes):
-    from jax._src.lax import linalg
     from jax.experimental.serialize_executable import deserialize_and_load
-    linalg.initialize_lapack()  # LAPACK's kernels, which a loaded executable may call
-    return deserialize_and_load(*pickle.loads(data))
+    lapack, payload = pickle.loads(data)
+    if lapack:  # its kernels, registered from SciPy's LAPACK (0.2–0.3 s to import)
+        from jax._src.lax import linalg
+        linalg.initialize_lapack()
+    return deserialize_and_load(*payload)
 
 
 def _signature(args) -> tuple:

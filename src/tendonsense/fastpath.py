@@ -165,7 +165,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
             W = Rx(v)
             HW = H @ W
             M = v.T @ HW
-            ok_m = jnp.abs(jnp.linalg.det(M)) > 1e-300
+            ok_m = jnp.abs(linalg.det(M)) > 1e-300
             Hn = H + (v - HW) @ linalg.solve(jnp.where(ok_m, M, jnp.eye(M.shape[0])),
                                              v.T @ H)
             return jnp.where(ok_m, Hn, H)
@@ -199,7 +199,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
     def gauss_newton(J, r):
         C = J[nq:]
         rhs = jnp.concatenate([-C.T @ r[nq:], -r[:nq]])
-        return jnp.linalg.solve(kkt(J), rhs)[:nq + n_z]
+        return linalg.solve(kkt(J), rhs)[:nq + n_z]
 
     def init_ls(x0, d0, p0, unknowns, values):
         m0 = measurements(d0)

@@ -117,7 +117,7 @@ class Scaling(NamedTuple):
 
 
 def scaling(values: Values, measured: tuple[int, ...]) -> Scaling:
-    L_inv = linalg.lower_inverse(jnp.linalg.cholesky(values.stiffness()))
+    L_inv = linalg.lower_inverse(linalg.cholesky(values.stiffness()))
     b = values.stretch_unit[:, np.array(measured, int)]
     root_k = 1.0 / jnp.maximum(jnp.linalg.norm(L_inv @ b, axis=0), 1e-150)
     E = jnp.sqrt(values.young_modulus)
@@ -199,7 +199,7 @@ def newton_solver(structure: Structure, measured: tuple[int, ...], n_z: int):
             ok = jnp.isfinite(_merit(rt)) & (_merit(rt) <= (1 - 2e-4 * st["alpha"]) * st["m"])
             conv = ok & (jnp.linalg.norm(rt) <= num.tolerance * (load_t + floor))
             accepted = dict(st, x=xt, r=rt, load=load_t, m=_merit(rt),
-                            dx=jnp.linalg.solve(Jt, -rt), alpha=jnp.asarray(1.0),
+                            dx=linalg.solve(Jt, -rt), alpha=jnp.asarray(1.0),
                             it=st["it"] + 1, total=st["total"] + 1)
             rejected = dict(st, alpha=st["alpha"] / 2)
             new = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), accepted, rejected)
