@@ -97,9 +97,10 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
     def init(x0, d0, p0, unknowns, values):
         m0 = measurements(d0)
         vs = at(values, p0)
-        return Carry(x0, linalg.inv(jac(x0, d0, unknowns, vs)),
-                     jnp.zeros((x0.size, m0.size)), m0, jnp.asarray(False), jnp.asarray(0),
-                     vs[1])
+        # no inverse yet: the first sample's loop forms it (one copy of the Jacobian's
+        # program), and again at its solution
+        return Carry(x0, jnp.zeros((x0.size, x0.size)), jnp.zeros((x0.size, m0.size)), m0,
+                     jnp.asarray(False), jnp.asarray(0), vs[1])
 
     def step(carry: Carry, d, p, unknowns, values):
         vs = at(values, p, carry.scaling)
@@ -108,13 +109,19 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         # first-order tangent predictor from the previous sample's sensitivity
         guess = carry.x + jnp.where(carry.ok, carry.dx_dm @ (measurements(d) - carry.measurements),
                                     0.0)
-        r, s = f(guess, d, unknowns, vs)
-        st = dict(x=guess, r=r, s=s, H=carry.H, fresh=jnp.asarray(False),
-                  alpha=jnp.asarray(1.0), evals=jnp.asarray(1), jacs=jnp.asarray(0),
-                  status=jnp.where(jnp.linalg.norm(r) <= num.tolerance * (s + floor), 1, 0))
+        # the loop's first pass evaluates the guess (r = 0 there: no step; one copy of the
+        # residual's program)
+        st = dict(x=guess, r=jnp.zeros(guess.size), s=jnp.asarray(0.0), H=carry.H,
+                  fresh=jnp.asarray(False), alpha=jnp.asarray(1.0), evals=jnp.asarray(0),
+                  jacs=jnp.asarray(0), status=jnp.asarray(0))
+
+        # an inverse not yet formed at a solution (the series' first sample, or every sample
+        # so far failed): once converged, one more pass forms it exactly there
+        unformed = (carry.count == 0) | ~jnp.any(carry.H != 0)
 
         def cond(st):
-            return (st["status"] == 0) & (st["evals"] < MAX_EVALUATIONS)
+            return ((st["status"] == 0) & (st["evals"] < MAX_EVALUATIONS)) | (
+                (st["status"] == 1) & unformed & ~st["fresh"])
 
         def body(st):
             dx = -st["H"] @ st["r"]
@@ -123,7 +130,9 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
             m0, mt = merit(st["r"]), merit(rt)
             contracts = mt <= 0.25 * m0
             armijo = mt <= (1 - 2e-4 * st["alpha"]) * m0
-            accept = contracts | (st["fresh"] & armijo)
+            first = st["evals"] == 0
+            again = st["status"] == 1  # converged: the pass that forms the inverse at x
+            accept = first | ((contracts | (st["fresh"] & armijo)) & ~again)
             conv = jnp.linalg.norm(rt) <= num.tolerance * (ts + floor)
             refresh = ~accept & ~st["fresh"]
             # good Broyden update of the inverse on an accepted step, exact on refresh
@@ -135,15 +144,16 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
                 safe, denom, 1.0)
             H = jax.lax.cond(refresh, lambda: linalg.inv(jac(st["x"], d, unknowns, vs)),
                              lambda: jnp.where(safe, broyden, st["H"]))
-            give_up = (~accept & st["fresh"] & (st["alpha"] < 2.0**-30)) | (
-                refresh & (st["jacs"] >= MAX_JACOBIANS))
+            give_up = ~again & ((~accept & st["fresh"] & (st["alpha"] < 2.0**-30)) | (
+                refresh & (st["jacs"] >= MAX_JACOBIANS)))
             return dict(
                 x=jnp.where(accept, xt, st["x"]), r=jnp.where(accept, rt, st["r"]),
                 s=jnp.where(accept, ts, st["s"]), H=H,
                 fresh=jnp.where(accept, False, True),
                 alpha=jnp.where(accept | refresh, 1.0, st["alpha"] / 2),
                 evals=st["evals"] + 1, jacs=st["jacs"] + refresh.astype(int),
-                status=jnp.where(accept, jnp.where(conv, 1, 0), jnp.where(give_up, 2, 0)))
+                status=jnp.where(again, 1, jnp.where(accept, jnp.where(conv, 1, 0),
+                                                     jnp.where(give_up, 2, 0))))
 
         st = jax.lax.while_loop(cond, body, st)
         x = st["x"]

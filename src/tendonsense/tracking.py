@@ -103,12 +103,12 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
         mu = np.asarray(model.values.friction, float)
     meas = list(prob.measured)
     valid = [k for k in range(n) if out[k] is None]
-    x0, seen_good, last_failed, done = start, False, False, 0
+    # the first sample from the straight rod on the scan itself (its exact Jacobian and line
+    # search), the solver with load continuation only if that fails (a rescue)
+    x0 = np.zeros(model.nq + prob.n_z) if start is None else start
+    seen_good, last_failed, done = False, False, 0
     for at in range(0, len(valid), chunk):
         idx = valid[at:at + chunk]
-        if x0 is None:  # the first sample solved from the straight rod (square problems)
-            x0 = _first_solution(prob, T[idx[0]], Y[idx[0], meas], model.values._replace(
-                **{name: v[idx[0]] for name, v in varied.items()}))
         pos = 0
         while pos < len(idx):
             run = idx[pos:]
@@ -154,18 +154,6 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
         done = end
     if done < n:  # every sample bad
         yield done, out[done:]
-
-
-def _first_solution(prob: Problem, T, targets, values) -> np.ndarray:
-    """A start for a series: its first sample solved from the straight rod with load
-    continuation (square problems; the straight rod itself for least squares, or if that
-    solve fails: the series' own fallback then takes over)."""
-    x0 = np.zeros(prob.model.nq + prob.n_z)
-    if len(prob.measured) != prob.n_z:
-        return x0
-    res = solve_system(prob.model.structure, values, prob.measured, prob.drive(T, targets),
-                       prob.unknowns, None)
-    return np.asarray(res.x) if bool(res.converged) else x0
 
 
 def _from_result(r) -> SampleEstimate:
