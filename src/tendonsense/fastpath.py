@@ -7,8 +7,9 @@ carried along the scan and kept current by Broyden updates. A step that does not
 residual triggers a fresh exact Jacobian at the current point, after which the iteration is
 the damped Newton method of :mod:`tendonsense.statics` (Armijo backtracking). Convergence is
 tested exactly as there, so the results agree with the plain path to the solver tolerance.
-The sensitivity to the measurements, ``dx/dm = −R_x⁻¹ R_m``, uses the carried inverse with two
-steps of iterative refinement against the exact ``R_x`` (JVPs).
+The sensitivity to the measurements, ``dx/dm = −R_x⁻¹ R_m``, uses the carried inverse; on
+every ``exact_every``-th sample (the first included) one more pass forms that inverse exactly
+at the solution, with the loop's own Jacobian (one copy of it in the program).
 """
 
 from __future__ import annotations
@@ -64,7 +65,7 @@ OFFSET, RELATIVE_OFFSET = 1e-6, 1e-3
 
 
 def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
-                tension_columns: tuple[int, ...], refine_every: int, step_tol: float = 1e-8):
+                tension_columns: tuple[int, ...], exact_every: int, step_tol: float = 1e-8):
     """``init(x0, d0, p0, unknowns, values) -> Carry`` and
     ``step(carry, d, p, unknowns, values) -> (Carry, Track row)`` of the tracker (pure):
     quasi-Newton for a square system, Gauss–Newton SQP for least squares (n_z < n_a)."""
@@ -115,13 +116,13 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
                   fresh=jnp.asarray(False), alpha=jnp.asarray(1.0), evals=jnp.asarray(0),
                   jacs=jnp.asarray(0), status=jnp.asarray(0))
 
-        # an inverse not yet formed at a solution (the series' first sample, or every sample
-        # so far failed): once converged, one more pass forms it exactly there
-        unformed = (carry.count == 0) | ~jnp.any(carry.H != 0)
+        # every exact_every-th sample (the first included) and while no inverse has been
+        # formed: once converged, one more pass forms the exact inverse there
+        exact = (carry.count % exact_every == 0) | ~jnp.any(carry.H != 0)
 
         def cond(st):
             return ((st["status"] == 0) & (st["evals"] < MAX_EVALUATIONS)) | (
-                (st["status"] == 1) & unformed & ~st["fresh"])
+                (st["status"] == 1) & exact & ~st["fresh"])
 
         def body(st):
             dx = -st["H"] @ st["r"]
@@ -165,23 +166,8 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
                                                jnp.arange(sel.size)].set(-sc.root_k)
         rT = f(x, d, unknowns, vs, with_actuation=True)[2]  # once, not in every evaluation
         Rm = jnp.concatenate([Ry, rT[:, tcols]], axis=1)
-        Rx = jax.vmap(lambda u: jax.jvp(lambda x: f(x, d, unknowns, vs)[0], (x,), (u,))[1],
-                      in_axes=1, out_axes=1)
-
-        def refine(H):
-            # the exact products W = R_x v give a block (multi-secant) Broyden update of the
-            # inverse, H W = v, then the refined v = −H R_m
-            v = -H @ Rm
-            W = Rx(v)
-            HW = H @ W
-            M = v.T @ HW
-            ok_m = jnp.abs(linalg.det(M)) > 1e-300
-            Hn = H + (v - HW) @ linalg.solve(jnp.where(ok_m, M, jnp.eye(M.shape[0])),
-                                             v.T @ H)
-            return jnp.where(ok_m, Hn, H)
-
-        H = jax.lax.cond(carry.count % refine_every == 0, refine, lambda H: H, st["H"])
-        return finish(carry, d, values, x, ok, fine, H, -H @ Rm, st["evals"], st["jacs"])
+        return finish(carry, d, values, x, ok, fine, st["H"], -st["H"] @ Rm, st["evals"],
+                      st["jacs"])
 
     def finish(carry, d, values, x, ok, fine, H, dx_dm, evals, jacs):
         grid, g = poses(values, x[:nq], points_at(structure, values, values.marker_X))
@@ -295,7 +281,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
 
 @lru_cache(maxsize=CACHE_SIZE)
 def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
-            tension_columns: tuple[int, ...], refine_every: int = 1, step_tol: float = 1e-8):
+            tension_columns: tuple[int, ...], exact_every: int = 1, step_tol: float = 1e-8):
     """Compiled ``track(x0, drives, unknowns, values, varied) -> Track`` for a square system
     (``len(measured) == n_z``) or least squares (more measured tendons); ``drives`` is a
     :class:`Drive` and ``varied`` a dict of values by name
@@ -303,7 +289,7 @@ def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
     The sensitivity columns are the measured lengths, then the tensions of the tendons
     ``tension_columns``. A least-squares sample is stationary when its Gauss–Newton step in z
     is below ``step_tol`` relative (a coarse value suits a profile that is refined later)."""
-    init, step = _sample_fns(structure, measured, n_z, tension_columns, refine_every, step_tol)
+    init, step = _sample_fns(structure, measured, n_z, tension_columns, exact_every, step_tol)
 
     def track(x0, drives, unknowns, values, varied):
         d0, p0 = jax.tree_util.tree_map(lambda a: a[0], (drives, varied))
@@ -312,13 +298,13 @@ def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
                               (drives, varied))
         return out
 
-    return Program(track, "tracker", (structure, measured, n_z, tension_columns, refine_every,
+    return Program(track, "tracker", (structure, measured, n_z, tension_columns, exact_every,
                                        step_tol))
 
 
 @lru_cache(maxsize=CACHE_SIZE)
 def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
-             tension_columns: tuple[int, ...], refine_every: int = 1):
+             tension_columns: tuple[int, ...], exact_every: int = 1):
     """Compiled ``follow(x0, drives, unknowns, values, given, band) -> (Track, states, bands)``:
     :func:`tracker` with every tendon's friction following its history
     (:mod:`tendonsense.sliding`). A sample that keeps every tendon pulled in is solved with
@@ -327,7 +313,7 @@ def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
     turning of the last sample's shape). ``given`` (N, n_t): states set by the log, NaN where
     the history decides; ``band`` (:class:`~tendonsense.sliding.Band`) the history before the
     first sample, ``bands`` after each. A failed sample leaves the history as it was."""
-    init, step = _sample_fns(structure, measured, n_z, tension_columns, refine_every)
+    init, step = _sample_fns(structure, measured, n_z, tension_columns, exact_every)
     nq = structure.nq
 
     def follow(x0, drives, unknowns, values, given, band):
@@ -372,22 +358,22 @@ def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
         return jax.lax.scan(sample, (carry, band), (drives, given))[1]
 
     return Program(follow, "follower", (structure, measured, n_z, tension_columns,
-                                         refine_every))
+                                         exact_every))
 
 
 @lru_cache(maxsize=CACHE_SIZE)
 def stepper(structure: Structure, measured: tuple[int, ...], n_z: int,
-            tension_columns: tuple[int, ...], refine_every: int = 1):
+            tension_columns: tuple[int, ...], exact_every: int = 1):
     """The tracker one sample at a time: compiled ``init(x0, d0, p0, unknowns, values)`` and
     ``step(carry, d, p, unknowns, values) -> (carry, row)``, the row packed into one vector
     (one transfer to the host; :func:`unpack_row`)."""
-    init, step = _sample_fns(structure, measured, n_z, tension_columns, refine_every)
+    init, step = _sample_fns(structure, measured, n_z, tension_columns, exact_every)
 
     def packed(carry, d, p, unknowns, values):
         carry, row = step(carry, d, p, unknowns, values)
         return carry, jnp.concatenate([jnp.ravel(a).astype(float) for a in row])
 
-    key = (structure, measured, n_z, tension_columns, refine_every)
+    key = (structure, measured, n_z, tension_columns, exact_every)
     return Program(init, "stepper_init", key), Program(packed, "stepper_step", key)
 
 
@@ -400,9 +386,11 @@ def unpack_row(flat: np.ndarray, n_x: int, n_m: int, n_markers: int, n_t: int) -
 
 
 def stacked_drives(prob: Problem, tensions: np.ndarray, targets: np.ndarray) -> Drive:
-    """The problem's drive for every row of ``tensions`` (N, n_t) and ``targets`` (N, n_m)."""
+    """The problem's drive for every row of ``tensions`` (N, n_t) and ``targets`` (N, n_m), as
+    NumPy arrays (a compiled program takes them as they are; JAX arrays made here would each
+    run an operation of their own)."""
     n = tensions.shape[0]
-    return Drive(jnp.asarray(tensions, float),
-                 jnp.asarray(np.broadcast_to(prob.known_forces, (n, *prob.known_forces.shape))),
-                 jnp.asarray(np.broadcast_to(prob.load_X, (n, *prob.load_X.shape))),
-                 jnp.asarray(np.broadcast_to(prob.gravity, (n, 3))), jnp.asarray(targets, float))
+    return Drive(np.asarray(tensions, float),
+                 np.broadcast_to(prob.known_forces, (n, *prob.known_forces.shape)).astype(float),
+                 np.broadcast_to(prob.load_X, (n, *prob.load_X.shape)).astype(float),
+                 np.broadcast_to(prob.gravity, (n, 3)).astype(float), np.asarray(targets, float))

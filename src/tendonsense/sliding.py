@@ -159,7 +159,7 @@ class Band(NamedTuple):
 
     @classmethod
     def of(cls, history: FrictionHistory) -> "Band":
-        return cls(jnp.asarray(history.s), jnp.asarray(history.p), jnp.asarray(history.phi))
+        return cls(*(np.array(a, float) for a in (history.s, history.p, history.phi)))
 
     def into(self, history: FrictionHistory) -> None:
         history.s, history.p, history.phi = (np.array(a, float) for a in self)

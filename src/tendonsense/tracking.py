@@ -117,12 +117,12 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
             drives = stacked_drives(prob, T[rows], Y[rows][:, meas])
             if history is None:
                 tr = jax.device_get(track(
-                    jnp.asarray(x0), drives, prob.unknowns, model.values,
-                    {name: jnp.asarray(v[rows]) for name, v in varied.items()}))
+                    np.asarray(x0, float), drives, prob.unknowns, model.values,
+                    {name: np.asarray(v[rows], float) for name, v in varied.items()}))
             else:
                 tr, states, bands = jax.device_get(follow(
-                    jnp.asarray(x0), drives, prob.unknowns, model.values,
-                    jnp.asarray(given[rows]), Band.of(history)))
+                    np.asarray(x0, float), drives, prob.unknowns, model.values,
+                    np.asarray(given[rows], float), Band.of(history)))
             for j, k in enumerate(run):
                 if tr.converged[j]:
                     sigma = band(tr.dx_dm[j, model.nq:, :], len(meas), T[k, list(tcols)], noise)
