@@ -15,7 +15,6 @@ import itertools
 from typing import Mapping, Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .fastpath import tracker
@@ -50,8 +49,8 @@ def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, 
 
     def equilibrium(z, q0):
         d = drive._replace(
-            forces=drive.forces + jnp.tensordot(jnp.asarray(z), prob.unknowns.forces, axes=1),
-            gravity=drive.gravity + jnp.asarray(z) @ prob.unknowns.gravity,
+            forces=drive.forces + np.tensordot(z, prob.unknowns.forces, axes=1),
+            gravity=drive.gravity + z @ prob.unknowns.gravity,
             load_X=drive.load_X + np.asarray(z)[prob.n_magnitudes:] @ prob.unknowns.positions,
             targets=np.zeros(0))
         res = solve_system(structure, values, (), d, statics_unknowns, q0, budget)
@@ -225,11 +224,12 @@ def _locate(prob: Problem, drive: Drive, values: Values, T, noise: Noise, budget
         grid = grid.reshape(-1, 2)
     fixed = prob.fixed()
     drives = [prob.at(X).drive(drive.tensions, drive.targets) for X in grid]
-    stacked = jax.tree_util.tree_map(lambda *a: jnp.stack([jnp.asarray(v) for v in a]), *drives)
+    stacked = jax.tree_util.tree_map(lambda *a: np.stack([np.asarray(v, float) for v in a]),
+                                     *drives)
     first, converged, *_ = _solve(prob.at(grid[0]).fixed(), drives[0], values, None, budget)
     tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.asarray(T) != 0))))
     track = tracker(model.structure, prob.measured, fixed.n_z, tcols, 4, PROFILE_STEP)
-    tr = jax.device_get(track(jnp.asarray(first), stacked, fixed.unknowns, values, {}))
+    tr = jax.device_get(track(np.asarray(first, float), stacked, fixed.unknowns, values, {}))
     sel = list(prob.measured)
     misfit = np.where(tr.converged, np.sqrt(np.mean(
         (tr.lengths[:, sel] - np.asarray(drive.targets)) ** 2, axis=1)), np.nan)

@@ -224,11 +224,13 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
                 | (jnp.linalg.norm(J[nq:] @ dx) <= OFFSET * jnp.linalg.norm(ry))
                 | (jnp.linalg.norm(ry) <= small))
 
-        J, r, s, rT = linear(guess, d, unknowns, vs)
-        dx = gauss_newton(J, r)
-        st = dict(x=guess, J=J, r=r, s=s, rT=rT, dx=dx, alpha=jnp.asarray(1.0),
-                  evals=jnp.asarray(1), jacs=jnp.asarray(1),
-                  status=jnp.where(stationary(guess, J, r, s, dx), 1, 0))
+        # the loop's first pass evaluates the guess (dx = 0 there; one copy of the
+        # linearisation's program)
+        n = nq + sel.size
+        st = dict(x=guess, J=jnp.zeros((n, guess.size)), r=jnp.zeros(n), s=jnp.asarray(0.0),
+                  rT=jnp.zeros((n, d.tensions.size)), dx=jnp.zeros(guess.size),
+                  alpha=jnp.asarray(1.0), evals=jnp.asarray(0), jacs=jnp.asarray(0),
+                  status=jnp.asarray(0))
 
         def cond(st):
             return (st["status"] == 0) & (st["evals"] < MAX_EVALUATIONS) & (
@@ -247,7 +249,8 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
             at_minimum = stationary(xt, Jt, rt, ts, dxt)
             o = st["alpha"] * jnp.linalg.norm(st["J"][nq:] @ st["dx"]) / jnp.maximum(
                 jnp.linalg.norm(st["r"][nq:]), 1e-300)
-            accept = (merit(rt) <= (1 - 1e-4 * st["alpha"]) * merit(st["r"])) | (
+            first = st["evals"] == 0
+            accept = first | (merit(rt) <= (1 - 1e-4 * st["alpha"]) * merit(st["r"])) | (
                 (rEt <= 0.5 * rE) & (rE > num.tolerance * (st["s"] + floor))
                 & jnp.isfinite(merit(rt))) | (
                 at_minimum & (o <= RELATIVE_OFFSET)

@@ -11,7 +11,6 @@ from functools import cached_property, lru_cache
 from typing import Mapping, Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from . import inputs
@@ -147,9 +146,9 @@ def _jacobians_fn(structure: Structure, measured: tuple[int, ...]):
 def reduced_jacobians(prob: Problem, x, drive, values: Values):
     """Reduced Jacobians of the measured lengths w.r.t. the magnitudes and the tensions, with
     the equilibrium eliminated: ``dy/dz = −y_q E_q⁻¹ E_z``, ``dy/dT = −y_q E_q⁻¹ E_T``."""
-    nq = prob.model.nq
+    nq, x = prob.model.nq, np.asarray(x, float)
     Eq, Ez, ET, yq = (np.asarray(a) for a in _jacobians_fn(prob.model.structure, prob.measured)(
-        jnp.asarray(x[:nq]), jnp.asarray(x[nq:]), drive.tensions, drive, prob.unknowns, values))
+        x[:nq], x[nq:], drive.tensions, drive, prob.unknowns, values))
     sol = np.linalg.solve(Eq, np.concatenate([Ez, ET], axis=1))
     return -yq @ sol[:, :prob.n_z], -yq @ sol[:, prob.n_z:]
 
