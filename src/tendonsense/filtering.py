@@ -35,12 +35,12 @@ import numpy as np
 
 from .compiled import Program
 from .estimation import estimate_problem
-from .inputs import Noise, direction, sliding as check_sliding
+from .inputs import Noise, sliding as check_sliding
 from .kinematics import poses, positions
 from .model import PointSet, Structure, Values, points_at
 from .problem import Problem, _jacobians_fn
 from .result import SampleEstimate
-from .sliding import NOISE_REACH, FrictionHistory, reach
+from .sliding import NOISE_REACH, FrictionHistory, labels
 from .statics import CACHE_SIZE, Drive, Unknowns, admissible, terms
 from .tendons import length_changes, turning
 
@@ -272,10 +272,9 @@ class MotionFilter:
         self._history = history
         if friction is None:
             return est
-        edge = reach(history.mu, phi, self.noise.tension)
-        return replace(est, friction_state=friction, sliding=tuple(
-            "stuck" if given.get(k) == "stuck" else direction(v, edge[k])
-            for k, v in enumerate(friction)))
+        return replace(est, friction_state=friction, sliding=labels(
+            friction, history.mu, phi, self.noise.tension,
+            [given.get(k) == "stuck" for k in range(len(friction))]))
 
     def _at_rest(self, t, x, P, drive) -> FilterState:
         """A state at ``x`` with covariance ``P`` and the exact Jacobians there."""

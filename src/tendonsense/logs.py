@@ -15,13 +15,13 @@ import numpy as np
 
 from .estimation import Noise, Unknown, problem
 from .filtering import WALK
-from .inputs import EDGE, check_unknowns, direction
+from .inputs import EDGE, check_unknowns
 from .online import OnlineEstimator
 from .readings import (ReadingsError, Sample, has_time, located, output_header, output_row,
                        output_rows, parse_header, parse_row, read_readings, with_sliding,
                        write_csv_atomic)
 from .robot import Robot
-from .sliding import FrictionHistory, band_range, reach, turning_program
+from .sliding import FrictionHistory, band_range, labels, turning_program
 from .tracking import SampleEstimate, series_chunks
 
 #: samples per compiled scan of a file log
@@ -82,23 +82,19 @@ def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
     series with each stuck tendon pulled in and paid out."""
     names, model = prob.robot.tendon_names, prob.model
     states = np.array([e.friction_state for e in estimates])
-    # the noise's reach into the bands of the rows inside one, from their turning angles
+    # turning angles (for the noise's reach) of the rows inside a band only; 0: no band
     inside = np.flatnonzero((np.abs(states) < 1 - EDGE).any(axis=1))
-    edge = np.zeros(states.shape)
+    phi = np.zeros(states.shape)
     if inside.size:
         shapes = np.array([estimates[j].x[:model.nq] if estimates[j].converged
                            else np.zeros(model.nq) for j in inside])
-        phi = np.asarray(turning_program(model.structure)(  # one scan's length: one program
+        phi[inside] = np.asarray(turning_program(model.structure)(  # one scan's length
             np.concatenate([shapes, np.zeros(((CHUNK - len(shapes) % CHUNK) % CHUNK,
                                               model.nq))]), model.values))[:len(shapes)]
-        edge[inside] = reach(model.values.friction, phi, noise.tension)
-    labels = np.array([[direction(v, edge[j, k]) for k, v in enumerate(states[j])]
-                       for j in range(len(states))]).reshape(states.shape)
-    stuck_of = (labels == "stuck") | np.array(
-        [[r.sliding.get(t) == "stuck" for t in names] for r in rows]).reshape(states.shape)
-    out = [replace(e, sliding=tuple("stuck" if stuck_of[j, k] else str(labels[j, k])
-                                    for k in range(len(names))))
+    out = [replace(e, sliding=labels(states[j], model.values.friction, phi[j], noise.tension,
+                                     [rows[j].sliding.get(t) == "stuck" for t in names]))
            for j, e in enumerate(estimates)]
+    stuck_of = np.array([[d == "stuck" for d in e.sliding] for e in out]).reshape(states.shape)
     stuck = [j for j in range(len(out)) if stuck_of[j].any() and out[j].converged]
     if not stuck:
         return out

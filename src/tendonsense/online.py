@@ -16,10 +16,10 @@ from .estimation import estimate_problem
 from .fastpath import Track, stepper, unpack_row
 from .filtering import WALK, MotionFilter
 from .forward import INADMISSIBLE
-from .inputs import Noise, direction, sliding as check_sliding
+from .inputs import Noise, sliding as check_sliding
 from .problem import Problem, band
 from .result import SampleEstimate
-from .sliding import (FIXED_POINT, STATE_TOL, FrictionHistory, band_range, reach,
+from .sliding import (FIXED_POINT, STATE_TOL, FrictionHistory, band_range, labels,
                       turning_program)
 from .statics import solve_system
 
@@ -156,11 +156,10 @@ class OnlineEstimator:
             if np.max(np.abs(new - state)) <= STATE_TOL:
                 break
             state = new
-        edge = reach(self._history.mu, self._history.phi, self.noise.tension)
-        labels = [direction(v, edge[k]) for k, v in enumerate(state)]
-        stuck = [k for k in range(len(names)) if labels[k] == "stuck" or given.get(k) == "stuck"]
-        est = replace(est, friction_state=state, sliding=tuple(
-            "stuck" if k in stuck else labels[k] for k in range(len(names))))
+        directions = labels(state, self._history.mu, self._history.phi, self.noise.tension,
+                            [given.get(k) == "stuck" for k in range(len(names))])
+        stuck = [k for k, d in enumerate(directions) if d == "stuck"]
+        est = replace(est, friction_state=state, sliding=directions)
         if not stuck:
             self._corners = {}
             return est

@@ -22,17 +22,24 @@ from .robot import Robot
 AXES = ("x", "y", "z")
 
 
-#: what ``float()`` reads as not finite
-_NON_FINITE = {"nan", "+nan", "-nan", "inf", "+inf", "-inf", "infinity", "+infinity",
-               "-infinity"}
-
-
 def _number(text: str) -> float:
     """The number in a CSV cell, NaN if it is not one."""
     try:
         return float(text)
     except ValueError:
         return math.nan
+
+
+def _not_finite(col: str, text: str) -> str:
+    """Why a cell that holds no finite number is refused: missing, not a number at all, or a
+    number that is not finite (``nan``, ``inf``)."""
+    if not text.strip():
+        return f"column {col}: missing value"
+    try:
+        float(text)
+    except ValueError:
+        return f"column {col}: {text.strip()!r} is not a number"
+    return f"column {col}: {text.strip()!r} is not a finite number"
 
 
 class ReadingsError(ValueError):
@@ -132,9 +139,7 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
                 continue
             v = _number(text)
             if not math.isfinite(v):
-                error = (f"column {col}: missing value" if not text.strip() else
-                         f"column {col}: {text.strip()!r} is not a "
-                         f"{'finite ' if text.strip().lower() in _NON_FINITE else ''}number")
+                error = _not_finite(col, text)
                 break
             kind, _, name = col.partition("_")
             error = (tension_error(name, v) if kind == "tension" else displacement_error(

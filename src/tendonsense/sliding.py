@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .compiled import Program
+from .inputs import direction
 from .model import Structure
 from .statics import CACHE_SIZE
 from .tendons import turning
@@ -44,6 +45,15 @@ def reach(mu, phi, tension_noise: float) -> np.ndarray:
     ±1 is labelled by the edge (in or out, :func:`~tendonsense.inputs.direction`), not stuck."""
     band = np.asarray(mu, float) * np.asarray(phi, float)
     return np.where(band > 0, NOISE_REACH * tension_noise / np.where(band > 0, band, 1.0), 0.0)
+
+
+def labels(states, mu, phi, tension_noise: float, stuck_given) -> tuple[str, ...]:
+    """Each tendon's direction (:func:`~tendonsense.inputs.direction`) from its friction state,
+    a state within the tension noise's :func:`reach` of its band's edge read as that edge, and
+    ``stuck`` wherever ``stuck_given`` (the log said so)."""
+    edge = reach(mu, phi, tension_noise)
+    return tuple("stuck" if given else direction(v, e)
+                 for v, e, given in zip(states, edge, stuck_given))
 
 
 @lru_cache(maxsize=CACHE_SIZE)
