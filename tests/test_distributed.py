@@ -222,10 +222,16 @@ def _gone(pids, wait=10.0) -> bool:
     return False
 
 
+def _profiling(dask_worker):
+    return "profile" in dask_worker.periodic_callbacks
+
+
 def test_a_cluster_closes_with_its_processes():
     with cluster(2) as c:
         pids = list(c.run(os.getpid).values())
         assert len(pids) == 2 and all(psutil.pid_exists(p) for p in pids)
+        # the local workers run without Dask's stack sampler (a fifth of a task's time)
+        assert not any(c.run(_profiling).values())
     assert _gone(pids)
     assert not [p for p in psutil.Process().children(recursive=True) if p.pid in pids]
 
