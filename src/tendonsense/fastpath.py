@@ -113,8 +113,9 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         # the loop's first pass evaluates the guess (r = 0 there: no step; one copy of the
         # residual's program)
         st = dict(x=guess, r=jnp.zeros(guess.size), s=jnp.asarray(0.0), H=carry.H,
-                  fresh=jnp.asarray(False), alpha=jnp.asarray(1.0), evals=jnp.asarray(0),
-                  jacs=jnp.asarray(0), status=jnp.asarray(0))
+                  rT=jnp.zeros((guess.size, d.tensions.size)), fresh=jnp.asarray(False),
+                  alpha=jnp.asarray(1.0), evals=jnp.asarray(0), jacs=jnp.asarray(0),
+                  status=jnp.asarray(0))
 
         # every exact_every-th sample (the first included) and while no inverse has been
         # formed: once converged, one more pass forms the exact inverse there
@@ -127,14 +128,19 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         def body(st):
             dx = -st["H"] @ st["r"]
             xt = st["x"] + st["alpha"] * dx
-            rt, ts = f(xt, d, unknowns, vs)
+            again = st["status"] == 1  # converged: the pass that forms the inverse at x
+
+            def converged(r, s):
+                return jnp.linalg.norm(r) <= num.tolerance * (s + floor)
+
+            # ∂r/∂T at the solution only (where this pass converges; once a sample)
+            rt, ts, rTt = f(xt, d, unknowns, vs, lambda r, s: converged(r, s) & ~again)
             m0, mt = merit(st["r"]), merit(rt)
             contracts = mt <= 0.25 * m0
             armijo = mt <= (1 - 2e-4 * st["alpha"]) * m0
             first = st["evals"] == 0
-            again = st["status"] == 1  # converged: the pass that forms the inverse at x
             accept = first | ((contracts | (st["fresh"] & armijo)) & ~again)
-            conv = jnp.linalg.norm(rt) <= num.tolerance * (ts + floor)
+            conv = converged(rt, ts)
             refresh = ~accept & ~st["fresh"]
             # good Broyden update of the inverse on an accepted step, exact on refresh
             step, dr = xt - st["x"], rt - st["r"]
@@ -149,7 +155,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
                 refresh & (st["jacs"] >= MAX_JACOBIANS)))
             return dict(
                 x=jnp.where(accept, xt, st["x"]), r=jnp.where(accept, rt, st["r"]),
-                s=jnp.where(accept, ts, st["s"]), H=H,
+                s=jnp.where(accept, ts, st["s"]), rT=jnp.where(accept, rTt, st["rT"]), H=H,
                 fresh=jnp.where(accept, False, True),
                 alpha=jnp.where(accept | refresh, 1.0, st["alpha"] / 2),
                 evals=st["evals"] + 1, jacs=st["jacs"] + refresh.astype(int),
@@ -164,8 +170,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         # ∂r/∂y_meas is −√k on the length rows, ∂r/∂T = −L⁻¹B on the equilibrium rows
         Ry = jnp.zeros((x.size, sel.size)).at[nq + jnp.arange(sel.size),
                                                jnp.arange(sel.size)].set(-sc.root_k)
-        rT = f(x, d, unknowns, vs, with_actuation=True)[2]  # once, not in every evaluation
-        Rm = jnp.concatenate([Ry, rT[:, tcols]], axis=1)
+        Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)
         return finish(carry, d, values, x, ok, fine, st["H"], -st["H"] @ Rm, st["evals"],
                       st["jacs"])
 

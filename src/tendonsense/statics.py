@@ -14,7 +14,7 @@ measured tendons and number of unknowns); every number is an input at run time.
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -79,6 +79,12 @@ def terms(structure: Structure, values: Values, q, z, drive: Drive, unknowns: Un
     (:func:`~tendonsense.kinematics.configuration`), so that its exact Jacobian (forward mode
     through the pull-back) costs O(nq) passes, not O(nq²) body Jacobians. ``B`` is formed only
     with ``actuation`` (else None: a program that does not use it does not trace it)."""
+    t, actuation_matrix = _terms(structure, values, q, z, drive, unknowns, lam)
+    return t._replace(B=actuation_matrix()) if actuation else t
+
+
+def _terms(structure, values, q, z, drive, unknowns, lam):
+    """:func:`terms` without ``B``, and a function that forms it from the same pull-back."""
     T = lam * drive.tensions + unknowns.tensions @ z
     a = lam * drive.gravity + z @ unknowns.gravity
     n_loc = unknowns.positions.shape[0]
@@ -97,15 +103,17 @@ def terms(structure: Structure, values: Values, q, z, drive: Drive, unknowns: Un
     if values.masses.shape[0]:
         at_points.append(loads.lumped_masses(values, points[-1], a))
     load = pull((jnp.tensordot(T, unit, axes=1) + weight, weight_nu, *at_points))
-    B = None
-    if actuation:
-        zeros = [jnp.zeros_like(nu), *(jnp.zeros_like(w) for w in at_points)]
-        B = jax.vmap(lambda w: pull((w, *zeros)))(unit).T
+    continuous = 0.0
     if structure.continuous:
         continuous = tendons.continuous_actuation(structure, values, q, values.friction)
         load = load + continuous @ T
-        B = B + continuous if actuation else None
-    return Terms(grid, B, tendons.length_changes(structure, values, grid, q), T, load)
+
+    def actuation_matrix():  # eq. 14: each tendon's unit wrenches pulled back
+        zeros = [jnp.zeros_like(nu), *(jnp.zeros_like(w) for w in at_points)]
+        return jax.vmap(lambda w: pull((w, *zeros)))(unit).T + continuous
+
+    return (Terms(grid, None, tendons.length_changes(structure, values, grid, q), T, load),
+            actuation_matrix)
 
 
 class Scaling(NamedTuple):
@@ -125,22 +133,30 @@ def scaling(values: Values, measured: tuple[int, ...]) -> Scaling:
 
 
 def residual(structure: Structure, values: Values, measured: tuple[int, ...], x, drive,
-             unknowns, lam, sc: Scaling, with_actuation: bool = False):
+             unknowns, lam, sc: Scaling, with_actuation: bool | Callable = False):
     """Scaled residual ``[L⁻¹(Kq − BT − F); √k (y − y_meas)]`` (both parts in √J) and the size
     of the load in the same norm; with ``with_actuation`` also ``∂r/∂T`` (the residual is
-    linear in the tensions)."""
+    linear in the tensions). ``with_actuation`` may be a predicate ``(r, load size) -> bool``
+    (traced): ``∂r/∂T`` is then formed only where it holds, zeros elsewhere."""
     nq = structure.nq
     q, z = x[:nq], x[nq:]
-    t = terms(structure, values, q, z, drive, unknowns, lam, actuation=with_actuation)
+    t, actuation_matrix = _terms(structure, values, q, z, drive, unknowns, lam)
     load = t.load
     E = sc.L_inv @ (values.young_modulus * (values.stiffness() @ q) - load)  # eq. 7
     sel = np.array(measured, int)
     e = sc.root_k * (t.y[sel] - lam * drive.targets)
     out = jnp.concatenate([E, e]), jnp.linalg.norm(sc.L_inv @ load)
-    if with_actuation:
-        dr_dT = jnp.concatenate([-lam * (sc.L_inv @ t.B), jnp.zeros((sel.size, t.B.shape[1]))])
-        return (*out, dr_dT)
-    return out
+    if with_actuation is False:
+        return out
+
+    def dr_dT():
+        B = actuation_matrix()
+        return jnp.concatenate([-lam * (sc.L_inv @ B), jnp.zeros((sel.size, B.shape[1]))])
+
+    if with_actuation is True:
+        return (*out, dr_dT())
+    return (*out, jax.lax.cond(with_actuation(*out), dr_dT,
+                               lambda: jnp.zeros((out[0].size, t.tensions.size))))
 
 
 class NewtonResult(NamedTuple):
