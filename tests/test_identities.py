@@ -179,3 +179,32 @@ def test_pullback_is_the_transposed_body_jacobian(prototype, elements):
     b = jax.jit(lambda q: jax.jvp(plain, (q,), (tq,)))(q)
     for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)):
         np.testing.assert_allclose(x, y, rtol=0, atol=1e-11 * np.abs(y).max())
+
+
+def test_residual_tension_derivative_is_exact(prototype):
+    """``residual(..., with_actuation)``'s ∂r/∂T (formed from B) equals forward-mode autodiff of
+    the residual in the tensions; as a predicate it is formed where the predicate holds and
+    zeros elsewhere (the tracker forms it on its converged pass only)."""
+    from tendonsense.statics import Drive, Unknowns, residual, scaling
+    model = model_for(prototype)
+    q = random_q(model, 6, scale=1.0)
+    drive = Drive(jnp.array([1.5, 0.3, 0.0]), jnp.zeros((0, 3)), jnp.zeros(0),
+                  jnp.array([0.0, 0.0, -9.81]), jnp.array([-0.004]))
+    unknowns, sc = Unknowns.none(3), scaling(model.values, (0,))
+
+    def r(x, T):
+        return residual(model.structure, model.values, (0,), x, drive._replace(tensions=T),
+                        unknowns, 1.0, sc)[0]
+
+    exact = np.asarray(jax.jacfwd(r, argnums=1)(q, drive.tensions))
+    rT = np.asarray(residual(model.structure, model.values, (0,), q, drive, unknowns, 1.0, sc,
+                             with_actuation=True)[2])
+    assert np.abs(exact).max() > 1e-3
+    np.testing.assert_allclose(rT, exact, rtol=0, atol=1e-12 * np.abs(exact).max())
+    for holds in (True, False):
+        got = jax.jit(lambda x: residual(model.structure, model.values, (0,), x, drive,
+                                         unknowns, 1.0, sc,
+                                         with_actuation=lambda r, s: jnp.asarray(holds))[2])(q)
+        want = rT if holds else np.zeros_like(rT)
+        np.testing.assert_allclose(np.asarray(got), want, rtol=0,
+                                   atol=1e-12 * np.abs(exact).max() if holds else 0.0)
