@@ -2,6 +2,7 @@
 
 import csv
 import io
+import os
 import subprocess
 import sys
 import time
@@ -110,3 +111,28 @@ def test_overdetermined_exact_samples_are_all_converged(prototype):
         est = online.update({t: truth.displacements[t][k] for t in names}, dict(zip(names, T[k])))
         assert est.converged, k
         assert est.magnitudes[0] == pytest.approx(f[k], rel=1e-7)
+
+
+PINNED = """
+import os, jax.numpy as jnp
+(jnp.ones(3) + 1).block_until_ready()  # XLA's thread pool exists now
+from tendonsense.settings import pin
+core = max(os.sched_getaffinity(0))
+pin({core})
+print(sorted({frozenset(os.sched_getaffinity(int(t))) == {core}
+              for t in os.listdir("/proc/self/task")}))
+try:
+    pin({os.cpu_count()})
+except ValueError as exc:
+    print(exc)
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="Linux only")
+def test_pin_keeps_every_thread_on_the_core():
+    """A live estimator pinned to one core: XLA's pool threads move too (the calling thread
+    alone is what ``os.sched_setaffinity(0, …)`` moves); a core the machine lacks is named."""
+    out = subprocess.run([sys.executable, "-c", PINNED], capture_output=True, text=True,
+                         check=True).stdout.splitlines()
+    assert out[0] == "[True]"
+    assert out[1] == f"cores [{os.cpu_count()}]: this machine's cores are 0 to {os.cpu_count() - 1}"
