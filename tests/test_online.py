@@ -136,3 +136,36 @@ def test_pin_keeps_every_thread_on_the_core():
                          check=True).stdout.splitlines()
     assert out[0] == "[True]"
     assert out[1] == f"cores [{os.cpu_count()}]: this machine's cores are 0 to {os.cpu_count() - 1}"
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="Linux only")
+def test_cli_stream_pinned_to_a_core(readings):
+    """``--cpu CORE``: the live stream's every thread (XLA's included) runs on that core, the
+    answers are the same; a core the machine lacks, or --cpu on a file log, is refused."""
+    F, T, y = readings
+    core = max(os.sched_getaffinity(0))
+    proc = subprocess.Popen([sys.executable, "-m", "tendonsense.cli", "estimate",
+                             str(PROTOTYPE), "--readings", "-", "--unknown", "0.25,0,0,-1",
+                             "--cpu", str(core)],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
+    try:
+        proc.stdin.write("time,tension_t1,tension_t2,tension_t3,displacement_t1\n")
+        proc.stdin.flush()
+        proc.stdout.readline()
+        proc.stdin.write(f"0,{float(T[0])!r},0,0,{float(y[0])!r}\n")
+        proc.stdin.flush()
+        row = proc.stdout.readline().split(",")
+        assert float(row[2]) == pytest.approx(F[0], rel=1e-6)
+        tasks = os.listdir(f"/proc/{proc.pid}/task")
+        assert len(tasks) > 1
+        assert {frozenset(os.sched_getaffinity(int(t))) for t in tasks} == {frozenset({core})}
+        proc.stdin.close()
+        assert proc.wait(timeout=60) == 0
+    finally:
+        proc.kill()
+    p = stream(["--unknown", "0.25,0,0,-1", "--cpu", str(os.cpu_count())], "")
+    assert p.returncode == 2 and f"core {os.cpu_count()}: this machine's cores" in p.stderr
+    p = subprocess.run([sys.executable, "-m", "tendonsense.cli", "estimate", str(PROTOTYPE),
+                        "--readings", "x.csv", "--unknown", "0.25,0,0,-1", "--cpu", "0"],
+                       capture_output=True, text=True, timeout=600)
+    assert p.returncode == 2 and "--cpu goes with a live log" in p.stderr

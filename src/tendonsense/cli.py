@@ -28,6 +28,7 @@ from . import __version__, inputs
 from .inputs import GravityUnknown, Noise, PointForceUnknown
 from .readings import ReadingsError
 from .robot import RobotFileError, load_robot
+from .settings import pin
 from .units import GF, newtons
 
 DESCRIPTION = """\
@@ -128,6 +129,17 @@ def _positive(text: str) -> float:
         raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
     if not (v > 0 and v < float("inf")):
         raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return v
+
+
+def _core(text: str) -> int:
+    n = os.cpu_count() or 1
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a core number: {text!r}") from None
+    if not 0 <= v < n:
+        raise argparse.ArgumentTypeError(f"core {v}: this machine's cores are 0 to {n - 1}")
     return v
 
 
@@ -258,6 +270,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "per square root of a second (default 0.1): larger follows a change "
                         "sooner, smaller averages the noise longer")
     p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
+    p.add_argument("--cpu", type=_core, default=None, metavar="CORE",
+                   help="with --readings -: keep the process on this core, so that every row "
+                        "is answered in its usual time (beside a robot; XLA's threads then "
+                        "never wait for an idle core to wake)")
     p.add_argument("--view", action="store_true",
                    help="with --readings: show the estimates live in a 3-D view in the browser "
                         "(needs the optional package viser); a file log is replayed at its "
@@ -619,6 +635,8 @@ def _check_estimate(args, robot, tensions, displacements):
                              f"(--readings PATTERN -o OUTDIR/)")
     if args.readings is not None:
         args.readings = args.readings[0]
+    if args.cpu is not None and args.readings != "-":
+        raise UsageError("tendonsense estimate: --cpu goes with a live log (--readings -)")
     if args.readings is None:
         for flag, given in (("--view", args.view), ("-o/--estimates", args.estimates),
                             ("--dynamic", args.dynamic)):
@@ -998,6 +1016,8 @@ def _log(args, robot) -> bool:
     standard output, or into ESTIMATES.csv atomically); a live log row by row."""
     noise = Noise(args.length_noise, args.tension_noise)
     if args.readings == "-" or args.view:
+        if args.cpu is not None:
+            pin({args.cpu})
         return _stream(args, robot, noise)
     from . import readings as rd
     from .logs import estimate_chunks
