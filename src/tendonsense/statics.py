@@ -103,14 +103,14 @@ def _terms(structure, values, q, z, drive, unknowns, lam):
     if values.masses.shape[0]:
         at_points.append(loads.lumped_masses(values, points[-1], a))
     load = pull((jnp.tensordot(T, unit, axes=1) + weight, weight_nu, *at_points))
-    continuous = 0.0
     if structure.continuous:
         continuous = tendons.continuous_actuation(structure, values, q, values.friction)
         load = load + continuous @ T
 
     def actuation_matrix():  # eq. 14: each tendon's unit wrenches pulled back
         zeros = [jnp.zeros_like(nu), *(jnp.zeros_like(w) for w in at_points)]
-        return jax.vmap(lambda w: pull((w, *zeros)))(unit).T + continuous
+        B = jax.vmap(lambda w: pull((w, *zeros)))(unit).T
+        return B + continuous if structure.continuous else B
 
     return (Terms(grid, None, tendons.length_changes(structure, values, grid, q), T, load),
             actuation_matrix)
