@@ -226,12 +226,21 @@ def _profiling(dask_worker):
     return "profile" in dask_worker.periodic_callbacks
 
 
+def _cores():
+    return set().union(*(os.sched_getaffinity(int(t)) for t in os.listdir("/proc/self/task")))
+
+
 def test_a_cluster_closes_with_its_processes():
     with cluster(2) as c:
         pids = list(c.run(os.getpid).values())
         assert len(pids) == 2 and all(psutil.pid_exists(p) for p in pids)
         # the local workers run without Dask's stack sampler (a fifth of a task's time)
         assert not any(c.run(_profiling).values())
+        # and each on a core of its own, every thread of it (XLA's pool too)
+        if len(os.sched_getaffinity(0)) >= 2:
+            cores = c.run(_cores)
+            assert sorted(map(len, cores.values())) == [1, 1]
+            assert len(set().union(*cores.values())) == 2
     assert _gone(pids)
     assert not [p for p in psutil.Process().children(recursive=True) if p.pid in pids]
 

@@ -29,7 +29,7 @@ from .logs import LogSummary, estimate_file
 from .readings import log_outputs
 from .result import SampleEstimate
 from .robot import Robot
-from .settings import cache_dir
+from .settings import cache_dir, pin
 from .tracking import BatchResult, batch_inputs, principal_order, varied_values
 from .tracking import estimate_batch as estimate_here
 from .tracking import solve_batch as solve_local
@@ -61,9 +61,11 @@ def cluster(workers: int = 2, scheduler: str | None = None,
     """A ``distributed.Client``, closed on exit: connected to the running scheduler at
     ``scheduler`` (e.g. ``"tcp://10.0.0.5:8786"``; the cluster stays up), or else on a
     ``LocalCluster`` of ``workers`` worker processes of one thread each, which is shut down
-    on exit with its processes. The local workers use this process's program cache folder
-    and do not run Dask's statistical profiler (:data:`PROFILER`; on a cluster of your own,
-    set it false in the workers' Dask config for the same gain).
+    on exit with its processes. The local workers use this process's program cache folder,
+    do not run Dask's statistical profiler (:data:`PROFILER`; on a cluster of your own, set
+    it false in the workers' Dask config for the same gain) and, when there are no more of
+    them than cores, each keeps to a core of its own (:func:`~tendonsense.settings.pin`: XLA's
+    threads then never wait for an idle core to wake).
 
     >>> with cluster(2) as client:
     ...     out = solve_batch(client, robot, {"t1": np.full(2000, 2.0)})
@@ -93,9 +95,24 @@ def cluster(workers: int = 2, scheduler: str | None = None,
         raise OSError(f"a local Dask cluster of {workers} workers did not start ({exc})") from None
     try:
         with distributed.Client(local) as client:
+            cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+            if workers <= len(cores):
+                client.register_plugin(_one_core_each(cores), name="tendonsense-pin")
             yield client
     finally:
         local.close()
+
+
+def _one_core_each(cores: list[int]):
+    """A worker plugin that keeps local worker ``k`` (its name) on ``cores[k]``, also when
+    the nanny starts it again."""
+    distributed = _distributed()
+
+    class OneCoreEach(distributed.WorkerPlugin):
+        def setup(self, worker):
+            pin({cores[int(worker.name) % len(cores)]})
+
+    return OneCoreEach()
 
 
 def _run(client, fn, tasks: Sequence[tuple], progress: Progress | None):
