@@ -6,6 +6,8 @@ import csv
 import json
 import os
 import signal
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -180,6 +182,20 @@ def test_the_command_line_on_many_logs(client, logs, tmp_path, capsys):
     assert summary["samples"] == sum(f.size for f in forces.values())
     assert summary["converged"] == summary["samples"]
     assert sorted(p.name for p in out.iterdir()) == sorted(forces)
+
+
+def test_handing_logs_to_a_cluster_loads_no_solver(client, logs, tmp_path):
+    """A process that only hands logs to a cluster never imports JAX: its start-up (half a
+    second and more) is not on the job's path; the workers do the work."""
+    folder, forces = logs
+    argv = ["estimate", str(PROTOTYPE), "--readings", str(folder / "run*.csv"), "--unknown",
+            "0.25,0,0,-1", "-o", f"{tmp_path}/", "--scheduler", client.scheduler.address,
+            "--quiet"]
+    run = subprocess.run([sys.executable, "-c", "import sys\nfrom tendonsense import cli\n"
+                          f"code = cli.main({argv!r})\nprint(code, 'jax' in sys.modules)"],
+                         capture_output=True, text=True, timeout=600)
+    assert run.stdout.splitlines()[-1] == "0 False", run.stdout + run.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(forces)
 
 
 @pytest.mark.parametrize("argv, message", [

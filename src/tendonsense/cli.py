@@ -1101,7 +1101,7 @@ def _logs(args, robot) -> int:
 
 
 def _walk(args) -> float:
-    from .filtering import WALK
+    from .inputs import WALK
     return WALK if args.force_walk is None else args.force_walk
 
 

@@ -10,6 +10,9 @@ once per robot structure, or loads it from the program cache (:mod:`tendonsense.
 ``distributed.Client`` (any cluster: :func:`cluster` makes a local one) or ``None``, which runs
 the same tasks one after another in this process, with the same numbers. Inputs are checked
 here, before anything is sent; a task whose worker dies is run again on another.
+
+The solvers (and JAX) are imported where work is done: a process that only hands logs to
+a cluster (:func:`estimate_logs`) never loads them.
 """
 
 from __future__ import annotations
@@ -17,22 +20,18 @@ from __future__ import annotations
 import os
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable, Iterator, Mapping, Sequence
+from typing import TYPE_CHECKING, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from .estimation import problem
-from .filtering import WALK
-from .forward import model_for
-from .inputs import Noise, Unknown, check_point_forces, check_unknowns, tendon_vector
-from .logs import LogSummary, estimate_file
-from .readings import log_outputs
+from .inputs import WALK, Noise, Unknown, check_point_forces, check_unknowns, tendon_vector
+from .readings import LogSummary, log_outputs
 from .result import SampleEstimate
 from .robot import Robot
 from .settings import cache_dir, pin
-from .tracking import BatchResult, batch_inputs, principal_order, varied_values
-from .tracking import estimate_batch as estimate_here
-from .tracking import solve_batch as solve_local
+
+if TYPE_CHECKING:
+    from .tracking import BatchResult  # noqa: F401 (annotations)
 
 #: how to install what this module needs
 EXTRA = 'pip install "tendonsense[distributed]"'
@@ -162,6 +161,7 @@ def solve_chunk(robot: Robot, T: np.ndarray, X: np.ndarray, F: np.ndarray,
     """One task of :func:`solve_batch`: :func:`tendonsense.tracking.solve_batch` over
     tensions ``T`` (n, n_t), point forces at ``X`` (n, n_p) of ``F`` (n, n_p, 3) and the
     varied ``values``, on one thread."""
+    from .tracking import solve_batch as solve_local
     forces = [(X[:, i], F[:, i]) for i in range(X.shape[1])]
     return solve_local(robot, T, forces, dict(values), workers=1)
 
@@ -184,6 +184,8 @@ def solve_batch(client, robot: Robot, tensions, point_forces: Sequence = (),
     >>> out = solve_batch(client, robot, {"t1": rng.uniform(1, 3, 20000)},
     ...                   values={"young_modulus": E, "friction": mu})
     """
+    from .forward import model_for
+    from .tracking import BatchResult, batch_inputs, principal_order
     T, X, F, varied = batch_inputs(robot, model_for(robot).values, tensions, point_forces,
                                    values)
     n = T.shape[0]
@@ -219,6 +221,8 @@ def estimate_chunk(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unk
                    values: Mapping[str, np.ndarray]) -> list[SampleEstimate]:
     """One task of :func:`estimate_batch`: the problem set up on the worker, then
     :func:`tendonsense.tracking.estimate_batch` over the chunk's readings on one thread."""
+    from .estimation import problem
+    from .tracking import estimate_batch as estimate_here
     prob = problem(robot, measured, unknowns, point_forces)
     return estimate_here(prob, displacements, tensions, noise, workers=1, values=dict(values))
 
@@ -240,6 +244,8 @@ def estimate_batch(client, robot: Robot, measured: Sequence[str], unknowns: Sequ
     ...                      [{"t1": -0.005}] * 5000, [{"t1": 2.1}] * 5000,
     ...                      values={"friction": rng.uniform(0.3, 0.5, 5000)})
     """
+    from .estimation import problem
+    from .tracking import varied_values
     prob = problem(robot, measured, unknowns, point_forces)
     n = len(displacements)
     if n == 0 or len(tensions) != n:
@@ -262,6 +268,13 @@ def estimate_batch(client, robot: Robot, measured: Sequence[str], unknowns: Sequ
 
 # ---------------------------------------------------------------------------------- many logs
 
+def _estimate_file(*task) -> LogSummary:
+    """One task of :func:`estimate_logs`: :func:`tendonsense.logs.estimate_file`, imported
+    on the worker."""
+    from .logs import estimate_file
+    return estimate_file(*task)
+
+
 def estimate_logs(client, robot: Robot, logs: Sequence[str | Path], out_dir: str | Path,
                   unknowns: Sequence[Unknown], point_forces=(), noise: Noise = Noise(),
                   dynamic: bool = False, walk: float = WALK,
@@ -270,7 +283,7 @@ def estimate_logs(client, robot: Robot, logs: Sequence[str | Path], out_dir: str
     another): each task reads its log, estimates every row and writes the estimates
     atomically to ``out_dir`` under the log's own name
     (:func:`tendonsense.logs.estimate_file`, the same numbers and file as ``estimate
-    --readings LOG -o OUT``). Returns a :class:`~tendonsense.logs.LogSummary` per log, in
+    --readings LOG -o OUT``). Returns a :class:`~tendonsense.readings.LogSummary` per log, in
     order; a log that cannot be used is one with ``error`` set, naming it, and the others
     go on. ``progress(done, total)`` is called per log.
 
@@ -295,5 +308,5 @@ def estimate_logs(client, robot: Robot, logs: Sequence[str | Path], out_dir: str
     tasks = [(robot, str(log), str(out), list(unknowns), list(point_forces), noise, dynamic,
               walk) for log, out in zip(logs, outs)]
     return [LogSummary(str(log), str(out), error=f"{log}: {r}") if isinstance(r, Exception)
-            else r for log, out, r in zip(logs, outs, _run(client, estimate_file, tasks,
+            else r for log, out, r in zip(logs, outs, _run(client, _estimate_file, tasks,
                                                              progress))]

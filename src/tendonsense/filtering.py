@@ -35,7 +35,7 @@ import numpy as np
 
 from .compiled import Program
 from .estimation import estimate_problem
-from .inputs import Noise, sliding as check_sliding
+from .inputs import WALK, Noise, sliding as check_sliding
 from .kinematics import poses, positions
 from .model import PointSet, Structure, Values, points_at
 from .problem import Problem, _jacobians_fn
@@ -46,9 +46,6 @@ from .tendons import length_changes, turning
 
 #: the time the robot is taken to have been at rest before the first sample, s
 REST = 1e6
-
-#: default random walk of the unknown magnitudes, per √s (N/√s for a force)
-WALK = 0.1
 
 #: columns of the iteration Jacobian renewed per step
 COLUMNS = 4

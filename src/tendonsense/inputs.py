@@ -235,6 +235,10 @@ class Noise:
     tension: float = 0.025 / 3
 
 
+#: default random walk of the unknown magnitudes in motion, per √s (N/√s for a force)
+WALK = 0.1
+
+
 Unknown = PointForceUnknown | GravityUnknown
 
 

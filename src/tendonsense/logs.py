@@ -7,19 +7,18 @@ from __future__ import annotations
 
 import csv
 import itertools
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
 from .estimation import Noise, Unknown, problem
-from .filtering import WALK
-from .inputs import EDGE, check_unknowns
+from .inputs import EDGE, WALK, check_unknowns
 from .online import OnlineEstimator
-from .readings import (ReadingsError, Sample, has_time, located, output_header, output_row,
-                       output_rows, parse_header, parse_row, read_readings, with_sliding,
-                       write_csv_atomic)
+from .readings import (LogSummary, ReadingsError, Sample, has_time, located, output_header,
+                       output_row, output_rows, parse_header, parse_row, read_readings,
+                       with_sliding, write_csv_atomic)
 from .robot import Robot
 from .sliding import FrictionHistory, band_range, labels, turning_program
 from .tracking import SampleEstimate, series_chunks
@@ -132,24 +131,6 @@ def estimate_readings(robot: Robot, measured: Sequence[str], samples: Sequence[S
         if progress:
             progress(first + len(estimates), len(samples))
     return out
-
-
-@dataclass(frozen=True)
-class LogSummary:
-    """What became of one log of many (:func:`estimate_file`): its rows' counts, or why it
-    could not be estimated (``error``, naming the log; then nothing was written)."""
-
-    log: str
-    output: str
-    samples: int = 0
-    converged: int = 0
-    skipped: int = 0
-    error: str | None = None
-
-    def to_json(self) -> dict:
-        return {"log": self.log, "output": None if self.error else self.output,
-                "samples": self.samples, "converged": self.converged, "skipped": self.skipped,
-                "error": self.error}
 
 
 def estimate_file(robot: Robot, log: str | Path, out: str | Path, unknowns: Sequence[Unknown],

@@ -14,9 +14,9 @@ import numpy as np
 
 from .estimation import estimate_problem
 from .fastpath import Track, stepper, unpack_row
-from .filtering import WALK, MotionFilter
+from .filtering import MotionFilter
 from .forward import INADMISSIBLE
-from .inputs import Noise, sliding as check_sliding
+from .inputs import WALK, Noise, sliding as check_sliding
 from .problem import Problem, band
 from .result import SampleEstimate
 from .sliding import (FIXED_POINT, STATE_TOL, FrictionHistory, band_range, labels,

@@ -565,3 +565,21 @@ def read_tension_schedule(path: str | Path,
     if np.any(np.diff(t) <= 0) or t[0] < 0:
         raise ReadingsError(f"{path}: time must start at >= 0 s and increase from row to row")
     return {n: (t, data[:, header.index(f"tension_{n}")]) for n in names}
+
+
+@dataclass(frozen=True)
+class LogSummary:
+    """What became of one log of many (:func:`tendonsense.logs.estimate_file`): its rows' counts, or why it
+    could not be estimated (``error``, naming the log; then nothing was written)."""
+
+    log: str
+    output: str
+    samples: int = 0
+    converged: int = 0
+    skipped: int = 0
+    error: str | None = None
+
+    def to_json(self) -> dict:
+        return {"log": self.log, "output": None if self.error else self.output,
+                "samples": self.samples, "converged": self.converged, "skipped": self.skipped,
+                "error": self.error}
