@@ -47,8 +47,8 @@ _B0 = (1.0 - GAMMA) ** 2 / (GAMMA * (2.0 - GAMMA))
 MAX_HALVINGS = 6
 #: relative residual at which a stage's Newton iteration stops (or the robot file's looser
 #: tolerance): far below a step's truncation error (prototype, 3 s, steps of 2 ms: markers move
-#: by 6e-10 m from 1e-10, their error against steps of 0.5 ms is 1e-6 to 4e-5 m), and 1.4x
-#: faster
+#: by 6e-10 m from 1e-10, their error against steps of 0.5 ms is 1e-6 to 4e-5 m); simulate
+#: 1.2-1.4x faster
 STAGE_TOLERANCE = 1e-8
 
 
