@@ -73,7 +73,7 @@ def simulated(robot, step: bool):
     return sim, truth, ramps, ts
 
 
-def estimates(robot, cols, dynamic):
+def estimates(robot, cols, dynamic, inertia=None):
     from tendonsense.estimation import problem
     from tendonsense.filtering import MotionFilter
     from tendonsense.inputs import Noise, PointForceUnknown
@@ -85,7 +85,7 @@ def estimates(robot, cols, dynamic):
     disp = [{"t1": v} for v in cols["displacement_t1"]]
     ten = [{n: cols[f"tension_{n}"][k] for n in robot.tendon_names} for k in range(len(disp))]
     if dynamic:
-        f = MotionFilter(prob, noise)
+        f = MotionFilter(prob, noise, inertia=inertia)
         out = [f.update(d, T, t) for d, T, t in zip(disp, ten, cols["time"])]
     else:  # estimate --readings: friction following each tendon's history
         rows = [Sample(k + 1, t, T, d, {})
@@ -136,7 +136,8 @@ def accuracy(seeds):
 
 def inertia():
     """The filter's error while moving at τ = 30 ms (no noise) on the Fig. 7 log simulated
-    with and without inertia, and the tendon's speed in each ramp."""
+    with and without inertia, the filter with and without it; the tendon's speed in each
+    ramp."""
     from tendonsense.forward import solve
     from tendonsense.simulation import simulate
     robot = robot_with(0.03)
@@ -148,13 +149,15 @@ def inertia():
         moving = np.zeros(sim.time.shape, bool)
         for a, b in ramps:
             moving |= (sim.time > a) & (sim.time < b)
-        err = 100 * np.abs(estimates(robot, sim.readings(), True) - WEIGHT) / WEIGHT
         y = sim.displacements["t1"]
         speeds = [abs(np.polyfit(sim.time[m], y[m], 1)[0]) * 1e3 for m in
                   ((sim.time > a) & (sim.time < b) for a, b in ramps)]
-        print(f"simulated with inertia={with_inertia}: filter's mean abs error while moving "
-              f"{err[moving].mean():.3f} %; t1's speed per ramp "
-              f"{', '.join(f'{v:.1f}' for v in speeds)} mm/s", flush=True)
+        for in_filter in (False, True):
+            est = estimates(robot, sim.readings(), True, inertia=in_filter)
+            err = 100 * np.abs(est - WEIGHT) / WEIGHT
+            print(f"simulated with inertia={with_inertia}, filter with inertia={in_filter}: "
+                  f"mean abs error while moving {err[moving].mean():.3f} %", flush=True)
+        print(f"t1's speed per ramp {', '.join(f'{v:.1f}' for v in speeds)} mm/s", flush=True)
 
 
 def latency(n):

@@ -32,11 +32,11 @@ def _robot(tau):
     return robot.replace(rod=dataclasses.replace(robot.rod, damping=tau * 1e6 / 3))
 
 
-def _log(robot, force):
+def _log(robot, force, inertia=False):
     """t1 pulled and released at about 10 mm/s from the equilibrium at t = 0, 100 Hz."""
     q0 = solve(robot, {"t1": RAMP[1][0]}, [(X, (0.0, 0.0, -WEIGHT))]).q
     sim = simulate(robot, {"t1": RAMP}, [(X, force)], duration=RAMP[0][-1], output_dt=0.01,
-                   inertia=False, q0=q0)
+                   inertia=inertia, q0=q0)
     assert sim.ok
     return sim
 
@@ -113,33 +113,36 @@ def test_moving_rod_with_noise(slow_rod):
 
 
 def test_force_step_followed():
-    """The weight drops by 0.32 N in the middle of a pull (τ = 30 ms, noisy readings): the
-    estimate covers 90 % of the step within 0.2 s."""
+    """The weight drops by 0.32 N in the middle of a pull (τ = 30 ms: the rod rings after
+    it; simulated with inertia, noisy readings): the estimate covers 90 % of the step within
+    0.2 s and stays within 3 % rms of the weight after it (the filter with inertia, chosen
+    because the rod rings: 1.8 %; a massless filter 2.7 %)."""
     robot = _robot(0.03)
     ts = 1.0
     mag = np.array([WEIGHT, WEIGHT, WEIGHT - 0.32, WEIGHT - 0.32])
     ft = np.array([0.0, ts, ts + 1e-3, RAMP[0][-1]])
-    sim = _log(robot, (ft, np.stack([0 * mag, 0 * mag, -mag], 1)))
+    sim = _log(robot, (ft, np.stack([0 * mag, 0 * mag, -mag], 1)), inertia=True)
     est, _ = _filtered(robot, sim.readings(1e-4, 0.01, seed=1))
     t = sim.time
     reached = t[(t >= ts) & (est <= WEIGHT - 0.9 * 0.32)]
     assert reached.size and reached[0] - ts <= 0.2
     late = t > ts + 0.5
-    assert np.abs(est[late] - (WEIGHT - 0.32)).max() < 0.05 * WEIGHT
+    assert np.sqrt(np.mean((est[late] - (WEIGHT - 0.32)) ** 2)) < 0.03 * WEIGHT
 
 
 def test_released_tendon_friction_followed():
     """Pulled and released (τ = 30 ms, simulated with friction that follows the tension):
     without noise the filter's friction states are the simulation's and its error stays below
     0.5 % of the weight throughout, where the pulled-in law (``sliding`` given ``in``) misreads
-    the release by more than half; with noise, at most the error at rest (issue 27)."""
+    the release by more than half; with noise, at most the error at rest (issue 27). The log
+    is simulated without inertia, so is the filter (with both: the next test)."""
     robot = _robot(0.03)
     sim = _log(robot, (0.0, 0.0, -WEIGHT))
     truth = sim.friction_state["t1"]
     assert truth.min() < -0.2 and truth[-1] < 1
     prob = problem(robot, ["t1"], [PointForceUnknown(X, (0, 0, -1))])
     disp, ten = _readings(sim.readings(), robot)
-    f = MotionFilter(prob, Noise(1e-4, 0.01))
+    f = MotionFilter(prob, Noise(1e-4, 0.01), inertia=False)
     out = [f.update(d, T, t) for d, T, t in zip(disp, ten, sim.time)]
     err = np.array([e.magnitudes[0] / WEIGHT - 1 for e in out])
     state = np.array([e.friction_state[0] if len(e.friction_state) else 1.0 for e in out])
@@ -149,10 +152,35 @@ def test_released_tendon_friction_followed():
     pulled = [f.update(d, T, t, {"t1": "in"}) for d, T, t in zip(disp, ten, sim.time)]
     released = sim.time > 2.3
     assert np.abs([e.magnitudes[0] / WEIGHT - 1 for e in pulled])[released].mean() > 0.5
-    est, _ = _filtered(robot, sim.readings(1e-4, 0.01, seed=0))
+    est, _ = _filtered(robot, sim.readings(1e-4, 0.01, seed=0), inertia=False)
     moving, rest = _phases(sim.time)
     rms = lambda m: np.sqrt(np.mean((est[m] - WEIGHT) ** 2))  # noqa: E731
     assert rms(released) <= 1.2 * rms(rest)
+
+
+def test_inertia_where_the_rod_rings():
+    """The filter takes the rod's inertia where its first mode rings (ζ₁ < 1; ζ₁ = τω₁/2
+    exactly for the paper's section, whose damping matrix is τK): at τ = 30 ms, on noise-free readings simulated with inertia, its
+    error while moving is below 0.2 % of the weight, a tenth of the quasi-static estimate's
+    and half the massless filter's; at τ = 0.3 s the rod does not ring and it is left out."""
+    from tendonsense.dynamics import first_mode
+    from tendonsense.forward import model_for
+    robot = _robot(0.03)
+    m = model_for(robot)
+    omega, zeta = first_mode(m.structure, m.values)
+    assert zeta == pytest.approx(0.03 * omega / 2, rel=1e-6)
+    prob = problem(robot, ["t1"], [PointForceUnknown(X, (0, 0, -1))])
+    assert MotionFilter(prob).inertia
+    assert not MotionFilter(problem(_robot(0.3), ["t1"],
+                                    [PointForceUnknown(X, (0, 0, -1))])).inertia
+    sim = _log(robot, (0.0, 0.0, -WEIGHT), inertia=True)
+    cols = sim.readings()
+    moving, _ = _phases(sim.time)
+    err = lambda e: np.abs(e[moving] - WEIGHT).mean() / WEIGHT  # noqa: E731
+    with_mass = err(_filtered(robot, cols)[0])
+    assert with_mass <= 2e-3
+    assert with_mass <= 0.1 * err(_static(robot, cols))
+    assert with_mass <= 0.5 * err(_filtered(robot, cols, inertia=False)[0])
 
 
 def test_without_damping_the_fixed_point_is_the_static_estimate():

@@ -52,7 +52,7 @@ MAX_HALVINGS = 6
 STAGE_TOLERANCE = 1e-8
 
 
-def _inertia_points(structure: Structure, values: Values):
+def mass_points(structure: Structure, values: Values):
     """The points of the mass quadrature (the two Zannah points of every grid interval, then
     the lumped masses) and their screw inertias ``w M_ρ`` (n, 6, 6) in the body frame."""
     h = values.h
@@ -73,7 +73,7 @@ def _inertia_points(structure: Structure, values: Values):
     return sets, M
 
 
-def _twists(values: Values, sets, q, v):
+def twists(values: Values, sets, q, v):
     """Body twists ``η = (g⁻¹ ġ)ˇ`` (n, 6) at the points of ``sets`` for ``q̇ = v``."""
     def at(q):
         return jnp.concatenate(poses(values, q, *sets)[1:])
@@ -90,8 +90,8 @@ def inertial_force(structure: Structure, values: Values, q, v, a):
     Newton–Euler wrench of every quadrature point pulled back through the configuration
     (:func:`~tendonsense.kinematics.configuration`), η and η̇ by forward-mode derivatives of
     the poses along the motion. No J is formed."""
-    sets, M = _inertia_points(structure, values)
-    eta, eta_dot = jax.jvp(lambda q, v: _twists(values, sets, q, v), (q, v), (v, a))
+    sets, M = mass_points(structure, values)
+    eta, eta_dot = jax.jvp(lambda q, v: twists(values, sets, q, v), (q, v), (v, a))
     p = jnp.einsum("nij,nj->ni", M, eta)
     w = jnp.einsum("nij,nj->ni", M, eta_dot) - ad_apply(eta, p, transpose=True)
     (grid, nu, *_), pull = configuration(values, q, *sets)
@@ -100,16 +100,38 @@ def inertial_force(structure: Structure, values: Values, q, v, a):
 
 
 def mass_matrix(structure: Structure, values: Values, q):
-    """``M(q)`` (nq, nq), the Jacobian of :func:`inertial_force` in q̈."""
-    zero = jnp.zeros_like(q)
-    return jax.jacfwd(lambda a: inertial_force(structure, values, q, zero, a))(zero)
+    """``M(q) = Σ Jᵀ M_ρ J`` (nq, nq) over the mass points, ``J = ∂η/∂q̇`` their body Jacobians
+    (the Jacobian of :func:`inertial_force` in q̈)."""
+    sets, M = mass_points(structure, values)
+    J = jax.jacfwd(lambda v: twists(values, sets, q, v))(jnp.zeros_like(q))
+    return jnp.einsum("nik,nij,njl->kl", J, M, J)
+
+
+@lru_cache(maxsize=CACHE_SIZE)
+def mass_matrix_fn(structure: Structure) -> Program:
+    """The compiled ``(values, q) -> M(q)`` (:func:`mass_matrix`)."""
+    return Program(lambda values, q: mass_matrix(structure, values, q), "mass_matrix",
+                   structure)
+
+
+def first_mode(structure: Structure, values: Values) -> tuple[float, float]:
+    """The slowest free mode of the straight, unloaded rod, ``K φ = ω² M φ``: its angular
+    frequency ω₁ (rad/s) and damping ratio ``ζ₁ = φᵀ D φ / (2 ω₁ φᵀ M φ)`` (ζ₁ < 1: the
+    mode rings after a sudden change of load; for the paper's section ζ₁ = τ ω₁ / 2)."""
+    from scipy.linalg import eigh
+    M = np.asarray(mass_matrix_fn(structure)(values, np.zeros(structure.nq)))
+    K = values.young_modulus * np.asarray(values.stiffness())
+    w2, phi = eigh(K, M, subset_by_index=[0, 0])
+    omega, phi = float(np.sqrt(w2[0])), phi[:, 0]
+    D = np.asarray(values.damping_matrix())
+    return omega, float(phi @ D @ phi / (2 * omega * (phi @ M @ phi)))
 
 
 def energy(structure: Structure, values: Values, q, v):
     """Kinetic and elastic energy ``½ ∫ ηᵀ M_ρ η dX + ½ E qᵀ K q`` (J), without the loads'
     work."""
-    sets, M = _inertia_points(structure, values)
-    eta = _twists(values, sets, q, v)
+    sets, M = mass_points(structure, values)
+    eta = twists(values, sets, q, v)
     return (0.5 * jnp.einsum("ni,nij,nj->", eta, M, eta)
             + 0.5 * values.young_modulus * q @ values.stiffness() @ q)
 

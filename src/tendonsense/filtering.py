@@ -14,9 +14,12 @@ and the unknown magnitudes) with a covariance ``P``; between two time stamps, h 
 
 Without damping (``D = 0``) the step is a Newton step towards the equilibrium and, at rest
 with as many measured tendons as unknowns, the filter settles on the quasi-static estimate.
-Inertia is left out: at the speeds of a tendon-driven rod it moves the estimate far less than
-the sensor noise, except in the ringing after a sudden change of tension (see the manual's
-motion page). The first sample is taken at rest: its quasi-static estimate starts the filter.
+Inertia is taken where the rod rings, i.e. its first mode is underdamped
+(:func:`~tendonsense.dynamics.first_mode`, ζ₁ < 1): a massless model reads the ringing after
+every change of speed as a changing force. The state is then ``[q; q̇; z]`` and the step that
+of ``M q̈ + D q̇ + E(q) = 0``, with ``M`` at the shape the filter starts from (the Coriolis
+terms, quadratic in q̇, left out). The first sample is taken at rest: its quasi-static
+estimate starts the filter.
 
 Friction follows each tendon's history (:class:`~tendonsense.sliding.FrictionHistory`): the
 state of a sample comes from its tension and the turning angles of the last estimated shape,
@@ -34,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .compiled import Program
+from .dynamics import first_mode, mass_matrix
 from .estimation import estimate_problem
 from .inputs import WALK, Noise, sliding as check_sliding
 from .kinematics import poses, positions
@@ -59,14 +63,17 @@ MARGIN = NOISE_REACH
 
 
 class FilterState(NamedTuple):
-    """Time of the last estimate, its ``x = [q; z]`` and covariance ``P``, the iteration
-    Jacobians ``∂E/∂q`` and ``∂y/∂q`` (a few columns renewed per step, from ``column`` on)."""
+    """Time of the last estimate, its ``x = [q; z]`` (with inertia ``[q; q̇; z]``) and
+    covariance ``P``, the iteration Jacobians ``∂E/∂q`` and ``∂y/∂q`` (a few columns renewed
+    per step, from ``column`` on) and, with inertia, the mass matrix ``M`` (made by the first
+    step, ``column`` < 0, at the shape the filter starts from)."""
 
     t: jax.Array
     x: jax.Array
     P: jax.Array
     E_q: jax.Array
     y_q: jax.Array
+    M: jax.Array
     column: jax.Array
 
 
@@ -80,34 +87,39 @@ class Tuning(NamedTuple):
 
 
 @lru_cache(maxsize=CACHE_SIZE)
-def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int) -> Program:
+def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int,
+                inertia: bool = False) -> Program:
     """The compiled ``step(state, t, drive, unknowns, values, tuning, markers) -> (state, row)``
     (``markers``: the markers' :class:`~tendonsense.model.PointSet`, made once): one
     predict and update at time t with the tensions and measured length changes of ``drive``;
-    ``row`` is ``[x, σ_z, markers, φ, ok]`` packed in one vector (one transfer to the host;
+    ``row`` is ``[q, z, σ_z, markers, φ, ok]`` packed in one vector (one transfer to the host;
     φ the tendons' turning angles at the estimate; ok (1 or 0): finite, later than the state
     and in the model's strain range). A sample that is not ok returns the state unchanged.
 
     The prediction is one linearly implicit Euler step (the implicit Euler equation
-    linearised at the last estimate; no iteration, so that every sample's work is fixed)."""
+    linearised at the last estimate; no iteration, so that every sample's work is fixed).
+    With ``inertia`` the state carries q̇ and the step is that of
+    ``M(q₋) q̈ + D q̇ + E(q) = 0`` with ``M`` at the last estimate (the Coriolis terms,
+    quadratic in q̇, left out)."""
     nq = structure.nq
     sel = np.array(measured, int)
+    nv = nq if inertia else 0
 
     def step(state: FilterState, t, drive: Drive, unknowns: Unknowns, values: Values,
              tuning: Tuning, markers: PointSet):
         K = values.young_modulus * values.stiffness()
         D = values.damping_matrix()
         h = t - state.t
-        q0, z = state.x[:nq], state.x[nq:]
+        q0, v0, z = state.x[:nq], state.x[nq:nq + nv], state.x[nq + nv:]
 
         def parts(q, z):  # (E, y) with E = K q − B T − F (eq. 7), and B = −∂E/∂T
             tm = terms(structure, values, q, z, drive, unknowns, 1.0, actuation=True)
             return (K @ q - tm.load, tm.y[sel]), tm.B
 
-        # exact ∂E/∂z, and COLUMNS columns of ∂E/∂q, ∂y/∂q in turn (forward mode): every
-        # step's work is the same, and the iteration matrix is never more than nq/COLUMNS
-        # steps old (a W-method: first-order accurate with any iteration matrix, L-stable
-        # with a close one)
+        # exact ∂E/∂z, and COLUMNS columns of ∂E/∂q, ∂y/∂q in turn (forward mode):
+        # every step's work is the same, and the iteration matrix is never more than
+        # nq/COLUMNS steps old (a W-method: first-order accurate with any iteration matrix,
+        # L-stable with a close one)
         k = min(COLUMNS, nq)
         cols = (state.column + jnp.arange(k)) % nq
         Vq = jnp.concatenate([jnp.eye(nq)[cols], jnp.zeros((n_z, nq))])
@@ -118,38 +130,57 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int) -> Pr
         E_q = state.E_q.at[:, cols].set(dE[:k].T)
         y_q = state.y_q.at[:, cols].set(dy[:k].T)
         E_z = dE[k:].T
-        # D (q − q₀)/h + E(q₀) + E_q (q − q₀) = 0, and its linearisation in q₀, z and T
-        n_t = B.shape[1]
-        sol = jnp.linalg.solve(D / h + E_q, jnp.concatenate([E[:, None], D / h, -E_z, B], 1))
-        q = q0 - sol[:, 0]
-        Phi_q, Phi_z, Phi_T = sol[:, 1:nq + 1], sol[:, nq + 1:nq + 1 + n_z], sol[:, -n_t:]
-        F = jnp.block([[Phi_q, Phi_z], [jnp.zeros((n_z, nq)), jnp.eye(n_z)]])
-        G = jnp.concatenate([Phi_z, jnp.eye(n_z)])
-        GT = jnp.concatenate([Phi_T, jnp.zeros((n_z, Phi_T.shape[1]))])
+        n_t, n_s = B.shape[1], nq + nv
+        if inertia:  # M (v − v₀)/h + D v + E(q₀) + h E_q v = 0, q = q₀ + h v
+            M = jax.lax.cond(state.column < 0, lambda: mass_matrix(structure, values, q0),
+                             lambda: state.M)
+            sol = jnp.linalg.solve(M / h + D + h * E_q, jnp.concatenate(
+                [(M @ v0 / h - E)[:, None], -E_q, M / h, -E_z, B], 1))
+            v, Phi = sol[:, 0], sol[:, 1:]  # ∂v/∂(q₀, v₀, z, T)
+            x1 = jnp.concatenate([q0 + h * v, v])
+            Phi_T = jnp.concatenate([h * Phi[:, -n_t:], Phi[:, -n_t:]])
+
+            def ahead(P):  # F P, F = ∂(q, v, z)/∂(q₀, v₀, z₀) = [I 0 0; 0 0 0; 0 0 I] + [h; 1; 0] Φ
+                WP = Phi[:, :n_s + n_z] @ P
+                return jnp.concatenate([P[:nq] + h * WP, WP, P[n_s:]])
+        else:  # D (q − q₀)/h + E(q₀) + E_q (q − q₀) = 0, and its linearisation in q₀, z, T
+            M = state.M
+            sol = jnp.linalg.solve(D / h + E_q,
+                                   jnp.concatenate([E[:, None], D / h, -E_z, B], 1))
+            x1, Phi = q0 - sol[:, 0], sol[:, 1:]  # ∂q/∂(q₀, z, T)
+            Phi_T = Phi[:, -n_t:]
+
+            def ahead(P):  # F P, F = ∂(q, z)/∂(q₀, z₀) = [Φ_q Φ_z; 0 I]
+                return jnp.concatenate([Phi[:, :n_s + n_z] @ P, P[n_s:]])
+        G = ahead(jnp.eye(n_s + n_z)[:, n_s:])  # the unknowns' walk enters as a change of z
+        GT = jnp.concatenate([Phi_T, jnp.zeros((n_z, n_t))])
         sT = tuning.tension * jnp.abs(drive.tensions)
-        P = F @ state.P @ F.T + (tuning.walk**2 * h) * (G @ G.T) + (GT * sT**2) @ GT.T
+        P = (ahead(ahead(state.P).T) + (tuning.walk**2 * h) * (G @ G.T)
+             + (GT * sT**2) @ GT.T)
 
         # update with the measured length changes (Joseph form)
+        q = x1[:nq]
         grid, = poses(values, q)
         y = length_changes(structure, values, grid, q)[sel]
-        H = jnp.concatenate([y_q, jnp.zeros((sel.size, n_z))], axis=1)
-        R = tuning.length**2 * jnp.eye(sel.size)
-        gain = jnp.linalg.solve(H @ P @ H.T + R, H @ P).T
-        x = jnp.concatenate([q, z]) + gain @ (drive.targets - y)
-        I_KH = jnp.eye(nq + n_z) - gain @ H
-        P = I_KH @ P @ I_KH.T + gain @ R @ gain.T
+        HP = y_q @ P[:nq]  # H = [∂y/∂q, 0]
+        S = HP[:, :nq] @ y_q.T + tuning.length**2 * jnp.eye(sel.size)
+        gain = jnp.linalg.solve(S, HP).T
+        x = jnp.concatenate([x1, z]) + gain @ (drive.targets - y)
+        KHP = gain @ HP  # (I − KH) P (I − KH)ᵀ + K R Kᵀ, expanded: O(n² m)
+        P = P - KHP - KHP.T + gain @ S @ gain.T
         P = 0.5 * (P + P.T)
 
-        _, mk = poses(values, x[:nq], markers)
+        q, z = x[:nq], x[n_s:]
+        _, mk = poses(values, q, markers)
         ok = (jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(P)) & (h > 0)
-              & admissible(values, x[:nq]))
-        new = FilterState(t, x, P, E_q, y_q, (state.column + k) % nq)
+              & admissible(values, q))
+        new = FilterState(t, x, P, E_q, y_q, M, (jnp.maximum(state.column, 0) + k) % nq)
         new = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, state)
-        sigma = jnp.sqrt(jnp.maximum(jnp.diagonal(P)[nq:], 0.0))
-        return new, jnp.concatenate([x, sigma, jnp.ravel(positions(mk, values.marker_offsets)),
-                                     turning(structure, values, x[:nq]), ok[None]])
+        sigma = jnp.sqrt(jnp.maximum(jnp.diagonal(P)[n_s:], 0.0))
+        return new, jnp.concatenate([q, z, sigma, jnp.ravel(positions(mk, values.marker_offsets)),
+                                     turning(structure, values, q), ok[None]])
 
-    return Program(step, "filter_step", (structure, measured, n_z))
+    return Program(step, "filter_step", (structure, measured, n_z, inertia))
 
 
 class MotionFilter:
@@ -161,7 +192,8 @@ class MotionFilter:
             est = f.update({"t1": y}, {"t1": T}, t)
 
     ``walk`` is how fast the unknowns may change (a random walk, in their unit per √s): larger
-    follows a changing force sooner, smaller averages the noise over longer. The first
+    follows a changing force sooner, smaller averages the noise over longer. ``inertia``:
+    whether the model has mass; by default where the rod rings (module docstring). The first
     sample (and the first after ``RESTART`` failures in a row) is taken at rest: its
     quasi-static estimate starts the filter. A bad reading, a time that does not follow the
     last, or a step that leaves the model's strain range is answered not converged with the
@@ -169,7 +201,8 @@ class MotionFilter:
     (e.g. a clock that was reset) start the filter again at rest. Friction follows each
     tendon's history (module docstring); ``update(..., sliding={"t1": "out"})`` sets it."""
 
-    def __init__(self, prob: Problem, noise: Noise = Noise(), walk: float = WALK):
+    def __init__(self, prob: Problem, noise: Noise = Noise(), walk: float = WALK,
+                 inertia: bool | None = None):
         if prob.located:
             raise ValueError("estimation in motion takes forces at known points (a location "
                              "range ('A:B' or '?') is estimated quasi-statically only)")
@@ -180,7 +213,12 @@ class MotionFilter:
             raise ValueError(f"force walk: must be a number > 0 (per √s), got {walk!r}")
         self.problem, self.noise, self.walk = prob, noise, walk
         model = prob.model
-        self._step = filter_step(model.structure, prob.measured, prob.n_z)
+        if inertia is None:  # where the rod rings: a massless model reads the ringing as force
+            rod = prob.robot.rod
+            inertia = (rod.damping > 0 and rod.density > 0
+                       and first_mode(model.structure, model.values)[1] < 1.0)
+        self.inertia = inertia
+        self._step = filter_step(model.structure, prob.measured, prob.n_z, inertia)
         self._values, self._unknowns = jax.device_put((model.values, prob.unknowns))
         self._markers = jax.device_put(points_at(model.structure, model.values,
                                                  model.values.marker_X))
@@ -274,13 +312,21 @@ class MotionFilter:
             [given.get(k) == "stuck" for k in range(len(friction))]))
 
     def _at_rest(self, t, x, P, drive) -> FilterState:
-        """A state at ``x`` with covariance ``P`` and the exact Jacobians there."""
+        """A state at rest at ``x = [q; z]`` with covariance ``P`` (of q and z) and the exact
+        Jacobians there (with inertia: q̇ = 0 and known, the mass matrix made by the first
+        step)."""
         prob = self.problem
-        nq = prob.model.nq
-        E_q, _, _, y_q = _jacobians_fn(prob.model.structure, prob.measured)(
+        model = prob.model
+        nq = model.nq
+        E_q, _, _, y_q = _jacobians_fn(model.structure, prob.measured)(
             x[:nq], x[nq:], drive.tensions, drive, self._unknowns, self._values)
-        return FilterState(np.float64(t), np.asarray(x, float), P, np.asarray(E_q),
-                           np.asarray(y_q), np.int64(0))
+        x, M, column = np.asarray(x, float), np.zeros(0), 0
+        if self.inertia:
+            x = np.insert(x, nq, np.zeros(nq))
+            P = np.insert(np.insert(P, [nq] * nq, 0.0, axis=0), [nq] * nq, 0.0, axis=1)
+            M, column = np.zeros((nq, nq)), -1
+        return FilterState(np.float64(t), x, P, np.asarray(E_q), np.asarray(y_q), M,
+                           np.int64(column))
 
     def _lost(self, note: str) -> SampleEstimate:
         """A failed sample after the filter has started: RESTART of them in a row start it
