@@ -267,7 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "Kalman filter; the log needs a time column)")
     p.add_argument("--force-walk", type=_positive, default=None, metavar="N/SQRT(S)",
                    help="with --dynamic: how fast the unknown forces may change, a random walk "
-                        "per square root of a second (default 0.1): larger follows a change "
+                        "per square root of a second (default 0.12): larger follows a change "
                         "sooner, smaller averages the noise longer")
     p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
     p.add_argument("--cpu", type=_core, default=None, metavar="CORE",

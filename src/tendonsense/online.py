@@ -62,16 +62,18 @@ class OnlineEstimator:
 
     With ``dynamic=True`` each sample needs its ``time`` (s) and is estimated with the damped
     model (:class:`~tendonsense.filtering.MotionFilter`, ``walk`` its unknowns' random walk per
-    √s): right while the robot moves, at a fixed amount of work per sample after the first
-    (a static estimate, taken at rest); friction follows the history there too, without the
-    range of a stuck sample.
+    √s; ``inertia`` its choice of a model with mass, by default where the rod rings): right
+    while the robot moves, at a fixed amount of work per sample after the first (a static
+    estimate, taken at rest); friction follows the history there too, without the range of a
+    stuck sample.
     """
 
     def __init__(self, prob: Problem, noise: Noise = Noise(), time_limit: float = 0.02,
-                 rescue_budget: int | None = None, dynamic: bool = False, walk: float = WALK):
+                 rescue_budget: int | None = None, dynamic: bool = False, walk: float = WALK,
+                 inertia: bool | None = None):
         self.problem, self.noise, self.time_limit = prob, noise, time_limit
         self.rescue_budget = rescue_budget
-        self._filter = MotionFilter(prob, noise, walk) if dynamic else None
+        self._filter = MotionFilter(prob, noise, walk, inertia) if dynamic else None
         model = prob.model
         self._square = len(prob.measured) == prob.n_z
         self._tcols = tuple(range(model.n_tendons))
