@@ -73,7 +73,7 @@ def simulated(robot, step: bool):
     return sim, truth, ramps, ts
 
 
-def estimates(robot, cols, dynamic, inertia=None):
+def estimates(robot, cols, dynamic, inertia=True):
     from tendonsense.estimation import problem
     from tendonsense.filtering import MotionFilter
     from tendonsense.inputs import Noise, PointForceUnknown

@@ -114,17 +114,19 @@ def mass_matrix_fn(structure: Structure) -> Program:
                    structure)
 
 
-def first_mode(structure: Structure, values: Values) -> tuple[float, float]:
-    """The slowest free mode of the straight, unloaded rod, ``K φ = ω² M φ``: its angular
-    frequency ω₁ (rad/s) and damping ratio ``ζ₁ = φᵀ D φ / (2 ω₁ φᵀ M φ)`` (ζ₁ < 1: the
-    mode rings after a sudden change of load; for the paper's section ζ₁ = τ ω₁ / 2)."""
+def free_modes(structure: Structure, values: Values, q=None):
+    """The free modes of the rod at shape ``q`` (default straight), slowest first:
+    ``K φ = ω² M φ`` with the elastic stiffness K and ``M(q)``, each φ M-normalised. Returns
+    ω (rad/s), the damping ratios ``ζ = φᵀ D φ / (2ω)`` (ζ < 1: the mode rings after a sudden
+    change of load; for the paper's section ζ = τω/2), the modes (nq, nq) as columns and M."""
     from scipy.linalg import eigh
-    M = np.asarray(mass_matrix_fn(structure)(values, np.zeros(structure.nq)))
-    K = values.young_modulus * np.asarray(values.stiffness())
-    w2, phi = eigh(K, M, subset_by_index=[0, 0])
-    omega, phi = float(np.sqrt(w2[0])), phi[:, 0]
+    q = np.zeros(structure.nq) if q is None else np.asarray(q, float)
+    M = np.asarray(mass_matrix_fn(structure)(values, q))
+    w2, phi = eigh(values.young_modulus * np.asarray(values.stiffness()), M)
+    omega = np.sqrt(np.maximum(w2, 0.0))
     D = np.asarray(values.damping_matrix())
-    return omega, float(phi @ D @ phi / (2 * omega * (phi @ M @ phi)))
+    zeta = np.einsum("ik,ij,jk->k", phi, D, phi) / (2 * np.maximum(omega, 1e-300))
+    return omega, zeta, phi, M
 
 
 def energy(structure: Structure, values: Values, q, v):

@@ -14,11 +14,12 @@ and the unknown magnitudes) with a covariance ``P``; between two time stamps, h 
 
 Without damping (``D = 0``) the step is a Newton step towards the equilibrium and, at rest
 with as many measured tendons as unknowns, the filter settles on the quasi-static estimate.
-Inertia is taken where the rod rings, i.e. its first mode is underdamped
-(:func:`~tendonsense.dynamics.first_mode`, ζ₁ < 1): a massless model reads the ringing after
-every change of speed as a changing force. The state is then ``[q; q̇; z]`` and the step that
-of ``M q̈ + D q̇ + E(q) = 0``, with ``M`` at the shape the filter starts from (the Coriolis
-terms, quadratic in q̇, left out). The first sample is taken at rest: its quasi-static
+Inertia is taken in the modes that ring, i.e. are underdamped
+(:func:`~tendonsense.dynamics.free_modes`, ζ < 1): a massless model reads their ringing after
+every change of speed as a changing force. Their modal velocities w join the state and the
+step is that of ``M Ψ Ψᵀ M q̈ + D q̇ + E(q) = 0``, Ψ those modes and ``M`` the mass matrix at
+the shape the filter starts from (the Coriolis terms, quadratic in q̇, left out); the
+overdamped modes keep the massless model. The first sample is taken at rest: its quasi-static
 estimate starts the filter.
 
 Friction follows each tendon's history (:class:`~tendonsense.sliding.FrictionHistory`): the
@@ -37,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .compiled import Program
-from .dynamics import first_mode, mass_matrix
+from .dynamics import free_modes
 from .estimation import estimate_problem
 from .inputs import WALK, Noise, sliding as check_sliding
 from .kinematics import poses, positions
@@ -63,17 +64,17 @@ MARGIN = NOISE_REACH
 
 
 class FilterState(NamedTuple):
-    """Time of the last estimate, its ``x = [q; z]`` (with inertia ``[q; q̇; z]``) and
-    covariance ``P``, the iteration Jacobians ``∂E/∂q`` and ``∂y/∂q`` (a few columns renewed
-    per step, from ``column`` on) and, with inertia, the mass matrix ``M`` (made by the first
-    step, ``column`` < 0, at the shape the filter starts from)."""
+    """Time of the last estimate, its ``x = [q; z]`` (with ringing modes ``[q; w; z]``, w
+    their modal velocities) and covariance ``P``, the iteration Jacobians ``∂E/∂q`` and
+    ``∂y/∂q`` (a few columns renewed per step, from ``column`` on) and ``M Ψ``, the mass
+    matrix times the ringing modes Ψ at the shape the filter started from."""
 
     t: jax.Array
     x: jax.Array
     P: jax.Array
     E_q: jax.Array
     y_q: jax.Array
-    M: jax.Array
+    MP: jax.Array
     column: jax.Array
 
 
@@ -88,7 +89,7 @@ class Tuning(NamedTuple):
 
 @lru_cache(maxsize=CACHE_SIZE)
 def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int,
-                inertia: bool = False) -> Program:
+                ringing: int = 0) -> Program:
     """The compiled ``step(state, t, drive, unknowns, values, tuning, markers) -> (state, row)``
     (``markers``: the markers' :class:`~tendonsense.model.PointSet`, made once): one
     predict and update at time t with the tensions and measured length changes of ``drive``;
@@ -98,12 +99,12 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int,
 
     The prediction is one linearly implicit Euler step (the implicit Euler equation
     linearised at the last estimate; no iteration, so that every sample's work is fixed).
-    With ``inertia`` the state carries q̇ and the step is that of
-    ``M(q₋) q̈ + D q̇ + E(q) = 0`` with ``M`` at the last estimate (the Coriolis terms,
-    quadratic in q̇, left out)."""
+    With ``ringing`` modes Ψ (M-normalised, ``M Ψ`` in the state) the mass matrix is
+    ``M Ψ Ψᵀ M``: inertia in those modes alone, ``w = Ψᵀ M q̇`` in the state, and the step is
+    that of ``M Ψ ẇ + D q̇ + E(q) = 0`` (the Coriolis terms, quadratic in q̇, left out)."""
     nq = structure.nq
     sel = np.array(measured, int)
-    nv = nq if inertia else 0
+    nv = ringing
 
     def step(state: FilterState, t, drive: Drive, unknowns: Unknowns, values: Values,
              tuning: Tuning, markers: PointSet):
@@ -131,27 +132,31 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int,
         y_q = state.y_q.at[:, cols].set(dy[:k].T)
         E_z = dE[k:].T
         n_t, n_s = B.shape[1], nq + nv
-        if inertia:  # M (v − v₀)/h + D v + E(q₀) + h E_q v = 0, q = q₀ + h v
-            M = jax.lax.cond(state.column < 0, lambda: mass_matrix(structure, values, q0),
-                             lambda: state.M)
-            sol = jnp.linalg.solve(M / h + D + h * E_q, jnp.concatenate(
-                [(M @ v0 / h - E)[:, None], -E_q, M / h, -E_z, B], 1))
-            v, Phi = sol[:, 0], sol[:, 1:]  # ∂v/∂(q₀, v₀, z, T)
-            x1 = jnp.concatenate([q0 + h * v, v])
-            Phi_T = jnp.concatenate([h * Phi[:, -n_t:], Phi[:, -n_t:]])
-
-            def ahead(P):  # F P, F = ∂(q, v, z)/∂(q₀, v₀, z₀) = [I 0 0; 0 0 0; 0 0 I] + [h; 1; 0] Φ
-                WP = Phi[:, :n_s + n_z] @ P
-                return jnp.concatenate([P[:nq] + h * WP, WP, P[n_s:]])
+        if ringing:  # MΨ (w − w₀)/h + C v + E(q₀) = 0, w = (MΨ)ᵀ v, C = D + h E_q, q = q₀ + h v
+            MP = state.MP
+            Y = jnp.linalg.solve(D + h * E_q, jnp.concatenate([E[:, None], MP, E_q, E_z, B], 1))
+            Y_E, Y_M, U = Y[:, 0], Y[:, 1:1 + nv], Y[:, 1 + nv:]
+            S = jnp.linalg.inv(h * jnp.eye(nv) + MP.T @ Y_M)
+            w = S @ (MP.T @ Y_M @ v0 - h * MP.T @ Y_E)
+            v = -Y_E + Y_M @ S @ (v0 + MP.T @ Y_E)
+            x1 = jnp.concatenate([q0 + h * v, w])
+            # ∂(q, w)/∂(q₀, w₀, z, T): C⁻¹ ∂E/∂· = U (no w₀ column), I_w the w₀ columns
+            U = jnp.concatenate([U[:, :nq], jnp.zeros((nq, nv)), U[:, nq:nq + n_z],
+                                 -U[:, nq + n_z:]], 1)
+            I_w = jnp.eye(nv, n_s + n_z + n_t, nq)
+            Phi = jnp.concatenate([jnp.eye(nq, n_s + n_z + n_t)
+                                   + h * (Y_M @ S @ (MP.T @ U + I_w) - U),
+                                   S @ (MP.T @ Y_M @ I_w - h * MP.T @ U)])
         else:  # D (q − q₀)/h + E(q₀) + E_q (q − q₀) = 0, and its linearisation in q₀, z, T
-            M = state.M
+            MP = state.MP
             sol = jnp.linalg.solve(D / h + E_q,
                                    jnp.concatenate([E[:, None], D / h, -E_z, B], 1))
             x1, Phi = q0 - sol[:, 0], sol[:, 1:]  # ∂q/∂(q₀, z, T)
-            Phi_T = Phi[:, -n_t:]
+        Phi_T = Phi[:, -n_t:]
 
-            def ahead(P):  # F P, F = ∂(q, z)/∂(q₀, z₀) = [Φ_q Φ_z; 0 I]
-                return jnp.concatenate([Phi[:, :n_s + n_z] @ P, P[n_s:]])
+        def ahead(P):  # F P, F = ∂(q, w, z)/∂(q₀, w₀, z₀) = [Φ_s Φ_z; 0 I]
+            return jnp.concatenate([Phi[:, :n_s + n_z] @ P, P[n_s:]])
+
         G = ahead(jnp.eye(n_s + n_z)[:, n_s:])  # the unknowns' walk enters as a change of z
         GT = jnp.concatenate([Phi_T, jnp.zeros((n_z, n_t))])
         sT = tuning.tension * jnp.abs(drive.tensions)
@@ -174,13 +179,13 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int,
         _, mk = poses(values, q, markers)
         ok = (jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(P)) & (h > 0)
               & admissible(values, q))
-        new = FilterState(t, x, P, E_q, y_q, M, (jnp.maximum(state.column, 0) + k) % nq)
+        new = FilterState(t, x, P, E_q, y_q, MP, (state.column + k) % nq)
         new = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, state)
         sigma = jnp.sqrt(jnp.maximum(jnp.diagonal(P)[n_s:], 0.0))
         return new, jnp.concatenate([q, z, sigma, jnp.ravel(positions(mk, values.marker_offsets)),
                                      turning(structure, values, q), ok[None]])
 
-    return Program(step, "filter_step", (structure, measured, n_z, inertia))
+    return Program(step, "filter_step", (structure, measured, n_z, ringing))
 
 
 class MotionFilter:
@@ -193,7 +198,7 @@ class MotionFilter:
 
     ``walk`` is how fast the unknowns may change (a random walk, in their unit per √s): larger
     follows a changing force sooner, smaller averages the noise over longer. ``inertia``:
-    whether the model has mass; by default where the rod rings (module docstring). The first
+    the mass of the modes that ring (module docstring; ``ringing`` counts them), or none. The first
     sample (and the first after ``RESTART`` failures in a row) is taken at rest: its
     quasi-static estimate starts the filter. A bad reading, a time that does not follow the
     last, or a step that leaves the model's strain range is answered not converged with the
@@ -202,7 +207,7 @@ class MotionFilter:
     tendon's history (module docstring); ``update(..., sliding={"t1": "out"})`` sets it."""
 
     def __init__(self, prob: Problem, noise: Noise = Noise(), walk: float = WALK,
-                 inertia: bool | None = None):
+                 inertia: bool = True):
         if prob.located:
             raise ValueError("estimation in motion takes forces at known points (a location "
                              "range ('A:B' or '?') is estimated quasi-statically only)")
@@ -213,12 +218,11 @@ class MotionFilter:
             raise ValueError(f"force walk: must be a number > 0 (per √s), got {walk!r}")
         self.problem, self.noise, self.walk = prob, noise, walk
         model = prob.model
-        if inertia is None:  # where the rod rings: a massless model reads the ringing as force
-            rod = prob.robot.rod
-            inertia = (rod.damping > 0 and rod.density > 0
-                       and first_mode(model.structure, model.values)[1] < 1.0)
-        self.inertia = inertia
-        self._step = filter_step(model.structure, prob.measured, prob.n_z, inertia)
+        rod = prob.robot.rod
+        self.ringing = 0  # the modes that ring (ζ < 1) carry the rod's inertia
+        if inertia and rod.damping > 0 and rod.density > 0:
+            self.ringing = int(np.sum(free_modes(model.structure, model.values)[1] < 1.0))
+        self._step = filter_step(model.structure, prob.measured, prob.n_z, self.ringing)
         self._values, self._unknowns = jax.device_put((model.values, prob.unknowns))
         self._markers = jax.device_put(points_at(model.structure, model.values,
                                                  model.values.marker_X))
@@ -313,20 +317,21 @@ class MotionFilter:
 
     def _at_rest(self, t, x, P, drive) -> FilterState:
         """A state at rest at ``x = [q; z]`` with covariance ``P`` (of q and z) and the exact
-        Jacobians there (with inertia: q̇ = 0 and known, the mass matrix made by the first
-        step)."""
+        Jacobians there; the ringing modes those of this shape, their velocities 0 and
+        known."""
         prob = self.problem
         model = prob.model
-        nq = model.nq
+        nq, r = model.nq, self.ringing
         E_q, _, _, y_q = _jacobians_fn(model.structure, prob.measured)(
             x[:nq], x[nq:], drive.tensions, drive, self._unknowns, self._values)
-        x, M, column = np.asarray(x, float), np.zeros(0), 0
-        if self.inertia:
-            x = np.insert(x, nq, np.zeros(nq))
-            P = np.insert(np.insert(P, [nq] * nq, 0.0, axis=0), [nq] * nq, 0.0, axis=1)
-            M, column = np.zeros((nq, nq)), -1
-        return FilterState(np.float64(t), x, P, np.asarray(E_q), np.asarray(y_q), M,
-                           np.int64(column))
+        x, MP = np.asarray(x, float), np.zeros((nq, r))
+        if r:
+            _, _, modes, M = free_modes(model.structure, model.values, x[:nq])
+            MP = M @ modes[:, :r]
+            x = np.insert(x, nq, np.zeros(r))
+            P = np.insert(np.insert(P, [nq] * r, 0.0, axis=0), [nq] * r, 0.0, axis=1)
+        return FilterState(np.float64(t), x, P, np.asarray(E_q), np.asarray(y_q), MP,
+                           np.int64(0))
 
     def _lost(self, note: str) -> SampleEstimate:
         """A failed sample after the filter has started: RESTART of them in a row start it

@@ -62,7 +62,7 @@ class OnlineEstimator:
 
     With ``dynamic=True`` each sample needs its ``time`` (s) and is estimated with the damped
     model (:class:`~tendonsense.filtering.MotionFilter`, ``walk`` its unknowns' random walk per
-    √s; ``inertia`` its choice of a model with mass, by default where the rod rings): right
+    √s; ``inertia``: the mass of the modes that ring, or none): right
     while the robot moves, at a fixed amount of work per sample after the first (a static
     estimate, taken at rest); friction follows the history there too, without the range of a
     stuck sample.
@@ -70,7 +70,7 @@ class OnlineEstimator:
 
     def __init__(self, prob: Problem, noise: Noise = Noise(), time_limit: float = 0.02,
                  rescue_budget: int | None = None, dynamic: bool = False, walk: float = WALK,
-                 inertia: bool | None = None):
+                 inertia: bool = True):
         self.problem, self.noise, self.time_limit = prob, noise, time_limit
         self.rescue_budget = rescue_budget
         self._filter = MotionFilter(prob, noise, walk, inertia) if dynamic else None
