@@ -111,7 +111,8 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int,
         K = values.young_modulus * values.stiffness()
         D = values.damping_matrix()
         h = t - state.t
-        q0, v0, z = state.x[:nq], state.x[nq:nq + nv], state.x[nq + nv:]
+        q0, w0, z = state.x[:nq], state.x[nq:nq + nv], state.x[nq + nv:]
+        MP = state.MP
 
         def parts(q, z):  # (E, y) with E = K q − B T − F (eq. 7), and B = −∂E/∂T
             tm = terms(structure, values, q, z, drive, unknowns, 1.0, actuation=True)
@@ -133,22 +134,20 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int,
         E_z = dE[k:].T
         n_t, n_s = B.shape[1], nq + nv
         if ringing:  # MΨ (w − w₀)/h + C v + E(q₀) = 0, w = (MΨ)ᵀ v, C = D + h E_q, q = q₀ + h v
-            MP = state.MP
             Y = jnp.linalg.solve(D + h * E_q, jnp.concatenate([E[:, None], MP, E_q, E_z, B], 1))
             Y_E, Y_M, U = Y[:, 0], Y[:, 1:1 + nv], Y[:, 1 + nv:]
-            S = jnp.linalg.inv(h * jnp.eye(nv) + MP.T @ Y_M)
-            w = S @ (MP.T @ Y_M @ v0 - h * MP.T @ Y_E)
-            v = -Y_E + Y_M @ S @ (v0 + MP.T @ Y_E)
+            Sw = jnp.linalg.inv(h * jnp.eye(nv) + MP.T @ Y_M)
+            w = Sw @ (MP.T @ Y_M @ w0 - h * MP.T @ Y_E)
+            v = -Y_E + Y_M @ Sw @ (w0 + MP.T @ Y_E)
             x1 = jnp.concatenate([q0 + h * v, w])
             # ∂(q, w)/∂(q₀, w₀, z, T): C⁻¹ ∂E/∂· = U (no w₀ column), I_w the w₀ columns
             U = jnp.concatenate([U[:, :nq], jnp.zeros((nq, nv)), U[:, nq:nq + n_z],
                                  -U[:, nq + n_z:]], 1)
             I_w = jnp.eye(nv, n_s + n_z + n_t, nq)
             Phi = jnp.concatenate([jnp.eye(nq, n_s + n_z + n_t)
-                                   + h * (Y_M @ S @ (MP.T @ U + I_w) - U),
-                                   S @ (MP.T @ Y_M @ I_w - h * MP.T @ U)])
+                                   + h * (Y_M @ Sw @ (MP.T @ U + I_w) - U),
+                                   Sw @ (MP.T @ Y_M @ I_w - h * MP.T @ U)])
         else:  # D (q − q₀)/h + E(q₀) + E_q (q − q₀) = 0, and its linearisation in q₀, z, T
-            MP = state.MP
             sol = jnp.linalg.solve(D / h + E_q,
                                    jnp.concatenate([E[:, None], D / h, -E_z, B], 1))
             x1, Phi = q0 - sol[:, 0], sol[:, 1:]  # ∂q/∂(q₀, z, T)
