@@ -115,8 +115,8 @@ def test_moving_rod_with_noise(slow_rod):
 def test_force_step_followed():
     """The weight drops by 0.32 N in the middle of a pull (τ = 30 ms: the rod rings after
     it; simulated with inertia, noisy readings): the estimate covers 90 % of the step within
-    0.2 s and stays within 3 % rms of the weight after it (the filter with inertia, chosen
-    because the rod rings: 1.8 %; a massless filter 2.7 %)."""
+    0.2 s and stays within 3 % rms of the weight after it (the filter with the inertia of the
+    modes that ring: 2.0 %; a massless filter 2.8 %)."""
     robot = _robot(0.03)
     ts = 1.0
     mag = np.array([WEIGHT, WEIGHT, WEIGHT - 0.32, WEIGHT - 0.32])
