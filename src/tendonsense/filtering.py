@@ -324,9 +324,9 @@ class MotionFilter:
         E_q, _, _, y_q = _jacobians_fn(model.structure, prob.measured)(
             x[:nq], x[nq:], drive.tensions, drive, self._unknowns, self._values)
         x, MP = np.asarray(x, float), np.zeros((nq, r))
-        if r:
-            _, _, modes, M = free_modes(model.structure, model.values, x[:nq])
-            MP = M @ modes[:, :r]
+        if r:  # the r least damped modes here (ζ grows with ω only where D ∝ K)
+            _, zeta, modes, M = free_modes(model.structure, model.values, x[:nq])
+            MP = M @ modes[:, np.argsort(zeta, kind="stable")[:r]]
             x = np.insert(x, nq, np.zeros(r))
             P = np.insert(np.insert(P, [nq] * r, 0.0, axis=0), [nq] * r, 0.0, axis=1)
         return FilterState(np.float64(t), x, P, np.asarray(E_q), np.asarray(y_q), MP,
