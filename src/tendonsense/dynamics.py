@@ -52,7 +52,7 @@ MAX_HALVINGS = 6
 STAGE_TOLERANCE = 1e-8
 
 
-def mass_points(structure: Structure, values: Values):
+def _inertia_points(structure: Structure, values: Values):
     """The points of the mass quadrature (the two Zannah points of every grid interval, then
     the lumped masses) and their screw inertias ``w M_ρ`` (n, 6, 6) in the body frame."""
     h = values.h
@@ -73,7 +73,7 @@ def mass_points(structure: Structure, values: Values):
     return sets, M
 
 
-def twists(values: Values, sets, q, v):
+def _twists(values: Values, sets, q, v):
     """Body twists ``η = (g⁻¹ ġ)ˇ`` (n, 6) at the points of ``sets`` for ``q̇ = v``."""
     def at(q):
         return jnp.concatenate(poses(values, q, *sets)[1:])
@@ -90,8 +90,8 @@ def inertial_force(structure: Structure, values: Values, q, v, a):
     Newton–Euler wrench of every quadrature point pulled back through the configuration
     (:func:`~tendonsense.kinematics.configuration`), η and η̇ by forward-mode derivatives of
     the poses along the motion. No J is formed."""
-    sets, M = mass_points(structure, values)
-    eta, eta_dot = jax.jvp(lambda q, v: twists(values, sets, q, v), (q, v), (v, a))
+    sets, M = _inertia_points(structure, values)
+    eta, eta_dot = jax.jvp(lambda q, v: _twists(values, sets, q, v), (q, v), (v, a))
     p = jnp.einsum("nij,nj->ni", M, eta)
     w = jnp.einsum("nij,nj->ni", M, eta_dot) - ad_apply(eta, p, transpose=True)
     (grid, nu, *_), pull = configuration(values, q, *sets)
@@ -102,8 +102,8 @@ def inertial_force(structure: Structure, values: Values, q, v, a):
 def mass_matrix(structure: Structure, values: Values, q):
     """``M(q) = Σ Jᵀ M_ρ J`` (nq, nq) over the mass points, ``J = ∂η/∂q̇`` their body Jacobians
     (the Jacobian of :func:`inertial_force` in q̈)."""
-    sets, M = mass_points(structure, values)
-    J = jax.jacfwd(lambda v: twists(values, sets, q, v))(jnp.zeros_like(q))
+    sets, M = _inertia_points(structure, values)
+    J = jax.jacfwd(lambda v: _twists(values, sets, q, v))(jnp.zeros_like(q))
     return jnp.einsum("nik,nij,njl->kl", J, M, J)
 
 
@@ -132,8 +132,8 @@ def free_modes(structure: Structure, values: Values, q=None):
 def energy(structure: Structure, values: Values, q, v):
     """Kinetic and elastic energy ``½ ∫ ηᵀ M_ρ η dX + ½ E qᵀ K q`` (J), without the loads'
     work."""
-    sets, M = mass_points(structure, values)
-    eta = twists(values, sets, q, v)
+    sets, M = _inertia_points(structure, values)
+    eta = _twists(values, sets, q, v)
     return (0.5 * jnp.einsum("ni,nij,nj->", eta, M, eta)
             + 0.5 * values.young_modulus * q @ values.stiffness() @ q)
 

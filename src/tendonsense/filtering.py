@@ -118,10 +118,10 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int,
             tm = terms(structure, values, q, z, drive, unknowns, 1.0, actuation=True)
             return (K @ q - tm.load, tm.y[sel]), tm.B
 
-        # exact ∂E/∂z, and COLUMNS columns of ∂E/∂q, ∂y/∂q in turn (forward mode):
-        # every step's work is the same, and the iteration matrix is never more than
-        # nq/COLUMNS steps old (a W-method: first-order accurate with any iteration matrix,
-        # L-stable with a close one)
+        # exact ∂E/∂z, and COLUMNS columns of ∂E/∂q, ∂y/∂q in turn (forward mode): every
+        # step's work is the same, and the iteration matrix is never more than nq/COLUMNS
+        # steps old (a W-method: first-order accurate with any iteration matrix, L-stable
+        # with a close one)
         k = min(COLUMNS, nq)
         cols = (state.column + jnp.arange(k)) % nq
         Vq = jnp.concatenate([jnp.eye(nq)[cols], jnp.zeros((n_z, nq))])
