@@ -305,20 +305,22 @@ def integrator(structure: Structure, inertia: bool):
             kh = _KAPPA * h
 
             def one(c, k):
-                q1, v1, lu, ok = c
+                q1, v1, a1, lu, ok = c
                 first = k == 0
                 base_q = jnp.where(first, s.q + kh * qd, _B1 * q1 - _B0 * s.q)
                 base_v = jnp.where(first, s.v + kh * s.a, _B1 * v1 - _B0 * s.v)
+                # second-order guesses: Newton 4.3 -> 3.7 passes a stage (prototype)
                 guess = jnp.where(first, s.q + GAMMA * h * qd
                                   + (0.5 * (GAMMA * h) ** 2 * s.a if inertia else 0.0),
-                                  q1 + (1 - GAMMA) * h * v1)
+                                  q1 + (1 - GAMMA) * h * v1
+                                  + (0.5 * ((1 - GAMMA) * h) ** 2 * a1 if inertia else 0.0))
                 t = s.t + jnp.where(first, GAMMA, 1.0) * h
                 mu, _ = schedule.friction(s.band, values.friction, t)
                 q, v, a, good, lu = stage(guess, base_q, base_v, kh, t, mu, lu)
-                return (q, v, lu, ok & good), a
+                return (q, v, a, lu, ok & good), a
 
-            (q, v, lu, ok), a = jax.lax.scan(one, (s.q, s.v, s.lu, jnp.asarray(True)),
-                                             jnp.arange(2))
+            (q, v, _, lu, ok), a = jax.lax.scan(one, (s.q, s.v, s.a, s.lu, jnp.asarray(True)),
+                                                jnp.arange(2))
             _, band = play(s.band, values.friction, schedule.drive(s.t + h).tensions,
                            turning(structure, values, q), schedule.sliding)
             return State(s.t + h, q, v, a[1], lu, band), ok
