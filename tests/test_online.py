@@ -138,6 +138,30 @@ def test_pin_keeps_every_thread_on_the_core():
     assert out[1] == f"cores [{os.cpu_count()}]: this machine's cores are 0 to {os.cpu_count() - 1}"
 
 
+BLAS = """
+import os, numpy  # numpy first, as in a notebook: SciPy's OpenBLAS (JAX's LU) loads later
+import tendonsense, jax.numpy as jnp
+(jnp.ones(3) + 1).block_until_ready()  # XLA's thread pools exist now
+before = len(os.listdir("/proc/self/task"))
+jnp.linalg.solve(jnp.eye(300) * 2.0, jnp.ones(300)).block_until_ready()
+print(os.environ["OPENBLAS_NUM_THREADS"], len(os.listdir("/proc/self/task")) - before)
+"""
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task") or (os.cpu_count() or 1) < 2,
+                    reason="Linux, 2 cores or more")
+def test_blas_runs_on_the_callers_thread_unless_told():
+    """JAX's LU calls SciPy's OpenBLAS, whose threads spin between calls and take a core from
+    a live estimator: importing tendonsense sets ``OPENBLAS_NUM_THREADS=1`` unless the user
+    has set it; the first solve then starts fewer threads than with the user's 2."""
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    runs = [subprocess.run([sys.executable, "-c", BLAS], capture_output=True, text=True,
+                           check=True, env=e).stdout.split()
+            for e in (env, {**env, "OPENBLAS_NUM_THREADS": "2"})]
+    assert runs[0][0] == "1" and runs[1][0] == "2"
+    assert int(runs[1][1]) > int(runs[0][1])
+
+
 @pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="Linux only")
 def test_cli_stream_pinned_to_a_core(readings):
     """``--cpu CORE``: the live stream's every thread (XLA's included) runs on that core, the
