@@ -53,18 +53,26 @@ def pin(cpus) -> set[int]:
     return cpus
 
 
+#: the variables by which OpenBLAS takes its number of threads, the first set winning
+BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
+
+
 def configure() -> None:
     """Apply :func:`jax_options`: through the environment when JAX is not imported yet (so
     that importing this package costs no JAX start-up), else on JAX's live configuration.
-    BLAS and Eigen run single-threaded unless ``OPENBLAS_NUM_THREADS`` or ``XLA_FLAGS`` say
-    otherwise (set them before importing this package)."""
+    Eigen and OpenBLAS run single-threaded unless ``XLA_FLAGS`` or ``OPENBLAS_NUM_THREADS``
+    (``GOTO_NUM_THREADS``, ``OMP_NUM_THREADS``) say otherwise: set them before importing
+    this package. The BLAS setting holds for every OpenBLAS loaded after the import (NumPy's
+    if NumPy was not imported yet) and for child processes."""
     # small matrices: Eigen's thread pool costs more than it saves
     if "xla_cpu_multi_thread_eigen" not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
                                    + " --xla_cpu_multi_thread_eigen=false").strip()
     # and so do OpenBLAS's threads (behind JAX's LU), which spin for work between calls and
-    # take a core from the caller: read when SciPy's OpenBLAS loads (at JAX's first solve)
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    # take a core from the caller: read when SciPy's OpenBLAS loads (at the first program
+    # that factors a matrix)
+    if not any(v in os.environ for v in BLAS_THREADS):
+        os.environ["OPENBLAS_NUM_THREADS"] = "1"
     options = jax_options()
     if "jax" in sys.modules:
         import jax
