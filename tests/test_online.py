@@ -12,9 +12,9 @@ import pytest
 
 from conftest import PROTOTYPE
 from tendonsense.estimation import PointForceUnknown, problem
-from tendonsense.settings import BLAS_THREADS
 from tendonsense.forward import solve
 from tendonsense.online import OnlineEstimator
+from tendonsense.settings import BLAS_THREADS
 
 
 @pytest.fixture(scope="module")
