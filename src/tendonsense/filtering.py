@@ -29,7 +29,6 @@ and signs the Capstan exponent of its step (one step a sample: no iteration on t
 
 from __future__ import annotations
 
-from dataclasses import replace
 from functools import lru_cache
 from typing import Mapping, NamedTuple
 
@@ -225,10 +224,16 @@ class MotionFilter:
         self._values, self._unknowns = jax.device_put((model.values, prob.unknowns))
         self._markers = jax.device_put(points_at(model.structure, model.values,
                                                  model.values.marker_X))
-        self._tuning = Tuning(*(np.float64(v) for v in (walk, noise.length, noise.tension)))
+        tuning = Tuning(*(np.float64(v) for v in (walk, noise.length, noise.tension)))
+        # on the device once: a sample copies in its time, tensions, targets and friction only
+        self._tuning, self._start, self._drive = jax.device_put((
+            tuning, tuning._replace(walk=np.float64(0.0)),
+            prob.drive(np.zeros(model.n_tendons), np.zeros(len(prob.measured)))))
         history = FrictionHistory(model.values.friction, MARGIN * noise.tension)
         self._history = history if history.active else None
-        self._start = self._tuning._replace(walk=np.float64(0.0))
+        # where the parts of the step's row [q, z, σ_z, markers, φ, ok] (filter_step) start
+        self._row = np.cumsum([0, model.nq, prob.n_z, prob.n_z, 3 * len(prob.robot.markers),
+                               model.n_tendons, 1]).tolist()
         self._call = None  # the step's executable, once loaded
         self.reset()
 
@@ -236,9 +241,8 @@ class MotionFilter:
         """Build (or load from the disk cache) the step's program now."""
         prob = self.problem
         n = prob.model.nq + prob.n_z
-        drive = prob.drive(np.zeros(prob.model.n_tendons), np.zeros(len(prob.measured)))
-        state = self._at_rest(0.0, np.zeros(n), np.eye(n), drive)
-        self._call = self._step.executable(state, np.float64(1.0), drive, self._unknowns,
+        state = self._at_rest(0.0, np.zeros(n), np.eye(n), self._drive)
+        self._call = self._step.executable(state, np.float64(1.0), self._drive, self._unknowns,
                                            self._values, self._tuning, self._markers)
 
     def reset(self):
@@ -268,7 +272,7 @@ class MotionFilter:
             time = None
         if time is None or not np.isfinite(time):
             return self._failed("time: estimation in motion needs a finite time stamp (s)")
-        drive = prob.drive(T, y[list(prob.measured)])
+        drive = self._drive._replace(tensions=T, targets=y[list(prob.measured)])
         state, tuning, values = self._state, self._tuning, self._values
         history = None if self._history is None else self._history.copy()
         friction = None
@@ -294,25 +298,22 @@ class MotionFilter:
         if self._call is None:
             self._call = self._step.executable(*args)
         new, row = self._call(*args)
-        n_x, n_m = prob.model.nq + prob.n_z, len(prob.robot.markers)
-        x, sigma, markers, phi, ok = np.split(np.asarray(row), np.cumsum(
-            [n_x, prob.n_z, 3 * n_m, prob.model.n_tendons]))
-        markers, ok = markers.reshape(n_m, 3), bool(ok[0])
-        if not ok:
+        row = np.asarray(row)
+        _, z, sigma, markers, phi, ok = (row[a:b] for a, b in zip(self._row, self._row[1:]))
+        if not ok[0]:
             return self._lost("the step left the model's strain range or did not stay finite")
         self._state, self._t, self._failures = new, float(time), 0
+        if history is not None:
+            history.phi = phi  # the next sample's state turns at this shape
+            self._history = history
         n = prob.n_magnitudes
-        est = SampleEstimate(x[prob.model.nq:][:n], sigma[:n],
-                             dict(zip(prob.robot.marker_names, markers)), True, 1, x)
-        if history is None:
-            return est
-        history.phi = phi  # the next sample's state turns at this shape
-        self._history = history
-        if friction is None:
-            return est
-        return replace(est, friction_state=friction, sliding=labels(
-            friction, history.mu, phi, self.noise.tension,
-            [given.get(k) == "stuck" for k in range(len(friction))]))
+        more = {} if friction is None else dict(
+            friction_state=friction, sliding=labels(
+                friction, history.mu, phi, self.noise.tension,
+                [given.get(k) == "stuck" for k in range(len(friction))]))
+        return SampleEstimate(z[:n], sigma[:n], dict(zip(prob.robot.marker_names,
+                                                         markers.reshape(-1, 3))),
+                              True, 1, row[:self._row[2]], **more)
 
     def _at_rest(self, t, x, P, drive) -> FilterState:
         """A state at rest at ``x = [q; z]`` with covariance ``P`` (of q and z) and the exact

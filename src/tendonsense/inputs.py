@@ -92,24 +92,29 @@ def tensions(robot: Robot, values: Mapping[str, float] | None) -> np.ndarray:
     return T
 
 
-def displacements(robot: Robot, values: Mapping[str, float] | None) -> np.ndarray:
-    """Length changes (m) per tendon by the rules of this module; tendons not named: 0."""
+def displacements(robot: Robot, values: Mapping[str, float] | None,
+                  rest: np.ndarray | None = None) -> np.ndarray:
+    """Length changes (m) per tendon by the rules of this module; tendons not named: 0.
+    ``rest``: the tendons' :func:`rest_lengths`, if known."""
     y = tendon_vector(robot, values, "displacement")
-    for name, v, rest in zip(robot.tendon_names, y, rest_lengths(robot)):
-        if name in (values or {}) and (error := displacement_error(name, v, rest)):
+    rest = rest_lengths(robot) if rest is None else rest
+    for name, v, length in zip(robot.tendon_names, y, rest):
+        if name in (values or {}) and (error := displacement_error(name, v, length)):
             raise ValueError(error)
     return y
 
 
 def readings(robot: Robot, displacements_: Mapping[str, float],
-             tensions_: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+             tensions_: Mapping[str, float], rest: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
     """``(T, y)`` per tendon of one reading: measured length changes ``displacements_`` (m)
-    and tensions ``tensions_`` (N) by tendon name; every measured tendon needs its tension."""
+    and tensions ``tensions_`` (N) by tendon name; every measured tendon needs its tension.
+    ``rest``: the tendons' :func:`rest_lengths`, if known."""
     missing = [n for n in displacements_ if n not in (tensions_ or {})]
     if missing:
         raise ValueError(f"tension {missing[0]}: missing: the tendon's length change is "
                          f"measured, its tension must be too (a slack tendon is 0)")
-    y = displacements(robot, displacements_)
+    y = displacements(robot, displacements_, rest)
     return tensions(robot, tensions_), y
 
 

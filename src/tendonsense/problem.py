@@ -79,7 +79,7 @@ class Problem:
         for j in self.measured:
             if names[j] not in displacements:
                 raise ValueError(f"displacement {names[j]}: missing: the tendon is measured")
-        return inputs.readings(self.robot, displacements, tensions)
+        return inputs.readings(self.robot, displacements, tensions, self.rest_lengths)
 
     def reading_error(self, T: np.ndarray, y: np.ndarray) -> str | None:
         """Why readings (tensions T, length changes y; per tendon) break the rules of

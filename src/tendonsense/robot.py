@@ -10,6 +10,7 @@ import math
 import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -89,11 +90,11 @@ class Robot:
     elements: tuple[float, ...] = ()  # interior element bounds; empty: the global basis
     masses: tuple[Mass, ...] = ()
 
-    @property
+    @cached_property
     def tendon_names(self) -> tuple[str, ...]:
         return tuple(t.name for t in self.tendons)
 
-    @property
+    @cached_property
     def marker_names(self) -> tuple[str, ...]:
         return tuple(m.name for m in self.markers)
 

@@ -17,6 +17,7 @@ error in the release against 11 %.)
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 from typing import Mapping, NamedTuple
 
@@ -95,7 +96,7 @@ class FrictionHistory:
         T = np.asarray(tensions, float)
         live = T > 0
         p = np.log(np.where(live, T, 1.0))
-        if np.any(live & ((self.s < 1) | (p < self.p))):  # NaN (slack before): False
+        if (live & ((self.s < 1) | (p < self.p))).any():  # NaN (slack before): False
             return False
         self.s, self.p = np.where(live, np.where(np.isnan(self.s), 1.0, self.s), np.nan), p
         return True
@@ -109,23 +110,28 @@ class FrictionHistory:
         if phi is not None:
             self.phi = np.asarray(phi, float)
         band = self.mu * self.phi
-        live = T > 0
-        p = np.log(np.where(live, T, 1.0))
-        rise = p - self.p
-        with np.errstate(divide="ignore", invalid="ignore"):  # no band: in or out at once
-            change = np.where(band > 0, rise * _per_width(np, last, band),
-                              np.sign(rise) * np.inf)
-        # the state moves within ±(1 + margin/band) and reads clipped to ±1: a reading must
-        # pass the band's edge by the margin to move the anchor's tension
-        wide = 1.0 + self.margin / np.where(band > 0, band, 1e-300) if self.margin else \
-            np.ones_like(band)
-        u = np.where(np.isnan(self.s), wide,
-                     np.clip(self.s + np.nan_to_num(change, nan=0.0), -wide, wide))
-        for k, d in (given or {}).items():
-            if d != "stuck":
-                u[k] = wide[k] if d == "in" else -wide[k]
-        u = np.where(live, u, wide)
-        self.s, self.p = np.where(live, u, np.nan), p
+        p = np.log(np.where(T > 0, T, 1.0))
+        per = _per_width(np, last, np.where(band > 0, band, 1.0))  # used where band > 0
+        given = given or {}
+        s = []
+        for k, (T_k, b, rise, s_k, per_k) in enumerate(zip(
+                T.tolist(), band.tolist(), (p - self.p).tolist(), self.s.tolist(), per.tolist())):
+            # the state moves within ±(1 + margin/band) and reads clipped to ±1: a reading
+            # must pass the band's edge by the margin to move the anchor's tension
+            wide = 1.0 + self.margin / (b if b > 0 else 1e-300) if self.margin else 1.0
+            if not T_k > 0 or given.get(k) == "in":
+                s_k = wide
+            elif given.get(k) == "out":
+                s_k = -wide
+            elif math.isnan(s_k):  # slack before, or the first reading: pulled in
+                s_k = wide
+            else:  # no band: in or out at once
+                s_k = s_k + rise * per_k if b > 0 else math.copysign(math.inf, rise) if rise \
+                    else s_k
+                s_k = min(max(s_k, -wide), wide)
+            s.append(s_k)
+        u = np.array(s)
+        self.s, self.p = np.where(T > 0, u, np.nan), p
         return np.clip(u, -1.0, 1.0)
 
 
