@@ -211,6 +211,33 @@ def test_a_stuck_state_does_not_drift_with_noise():
     np.testing.assert_allclose(compiled, states, rtol=0, atol=1e-12)
 
 
+
+def test_history_in_numpy_and_compiled_agree_on_every_branch():
+    """Three tendons (one without friction) read 400 times: tensions that rise, fall, hold
+    and go slack, shapes that change or not, the log saying in, out or stuck now and then;
+    :meth:`FrictionHistory.step` (per tendon, on floats) and the compiled :func:`play` give
+    the same states."""
+    import jax.numpy as jnp
+    from tendonsense.sliding import Band, FrictionHistory, play
+    rng = np.random.default_rng(3)
+    mu = np.array([0.4, 0.0, 0.3])
+    h = FrictionHistory(mu)
+    band = Band(jnp.full(3, jnp.nan), jnp.zeros(3), jnp.zeros(3))
+    phi = np.zeros(3)
+    for _ in range(400):
+        T = rng.choice([0.0, 1.0, 2.0], 3) * np.exp(rng.choice([0.0, 0.05], 3)
+                                                     * rng.standard_normal(3))
+        if rng.random() < 0.5:
+            phi = rng.choice([0.0, 0.5, 1.0], 3) + 0.1 * rng.random(3)
+        given = {j: str(rng.choice(["in", "out", "stuck"])) for j in range(3)
+                 if rng.random() < 0.15}
+        s = h.step(T, phi, given)
+        sign = np.array([{"in": 1.0, "out": -1.0}.get(given.get(j), np.nan) for j in range(3)])
+        c, band = play(band, jnp.asarray(mu), jnp.asarray(T), jnp.asarray(phi),
+                       jnp.asarray(sign))
+        np.testing.assert_allclose(s, np.asarray(c), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(h.s, np.asarray(band.s), rtol=0, atol=1e-12)
+
 def test_turning_is_the_turn_of_the_path(prototype):
     """φ of a tendon bent one way in one plane (no gravity: the tendon's moment alone; or the
     straight tapered rod) is the angle between its entry (the first disk's x axis) and its
