@@ -125,9 +125,9 @@ class FrictionHistory:
                 s_k = -wide
             elif math.isnan(s_k):  # slack before, or the first reading: pulled in
                 s_k = wide
-            else:  # no band: in or out at once
-                s_k = s_k + rise * per_k if b > 0 else math.copysign(math.inf, rise) if rise \
-                    else s_k
+            else:  # Δs = Δ ln T / (μφ); without a band: in or out at once
+                s_k = (s_k + rise * per_k if b > 0
+                       else math.copysign(math.inf, rise) if rise else s_k)
                 s_k = min(max(s_k, -wide), wide)
             s.append(s_k)
         u = np.array(s)
