@@ -14,13 +14,13 @@ from typing import Callable, Iterator, Sequence
 import numpy as np
 
 from .estimation import Noise, Unknown, problem
-from .inputs import EDGE, WALK, check_unknowns
+from .inputs import WALK, check_unknowns
 from .online import OnlineEstimator
 from .readings import (LogSummary, ReadingsError, Sample, has_time, located, output_header,
                        output_row, output_rows, parse_header, parse_row, read_readings,
                        with_sliding, write_csv_atomic)
 from .robot import Robot
-from .sliding import FrictionHistory, band_range, labels, turning_program
+from .sliding import FrictionHistory, band_range
 from .tracking import SampleEstimate, series_chunks
 
 #: samples per compiled scan of a file log
@@ -49,12 +49,14 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
     history = FrictionHistory(prob.model.values.friction)
     follow = history.active and not prob.located
     names = robot.tendon_names
-    given = np.array([[GIVEN[samples[k].sliding.get(t, "")] for t in names] for k in good]
-                     ).reshape(len(good), len(names))
+    said = [[samples[k].sliding.get(t, "") for t in names] for k in good]
+    given = np.array([[GIVEN[d] for d in row] for row in said]).reshape(len(good), len(names))
+    stuck = np.array([[d == "stuck" for d in row] for row in said]).reshape(given.shape)
     for first, estimates in series_chunks(
             prob, [samples[k].displacements for k in good],
             [samples[k].tensions for k in good], noise, CHUNK,
-            history=history if follow else None, given=given if follow else None):
+            history=history if follow else None, given=given if follow else None,
+            stuck=stuck if follow else None):
         if follow:
             estimates = _stuck_ranges(prob, [samples[k] for k in good[first:first + len(
                 estimates)]], estimates, noise)
@@ -76,23 +78,11 @@ GIVEN = {"in": 1.0, "out": -1.0, "stuck": np.nan, "": np.nan}
 def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
                   noise: Noise) -> list[SampleEstimate]:
     """Estimates that followed their tendons' friction history
-    (:class:`~tendonsense.sliding.FrictionHistory`) with each tendon's direction, and where one
-    is stuck the range of the magnitudes over its band: the stuck rows estimated again as a
-    series with each stuck tendon pulled in and paid out."""
-    names, model = prob.robot.tendon_names, prob.model
-    states = np.array([e.friction_state for e in estimates])
-    # turning angles (for the noise's reach) of the rows inside a band only; 0: no band
-    inside = np.flatnonzero((np.abs(states) < 1 - EDGE).any(axis=1))
-    phi = np.zeros(states.shape)
-    if inside.size:
-        shapes = np.array([estimates[j].x[:model.nq] if estimates[j].converged
-                           else np.zeros(model.nq) for j in inside])
-        phi[inside] = np.asarray(turning_program(model.structure)(  # one scan's length
-            np.concatenate([shapes, np.zeros(((CHUNK - len(shapes) % CHUNK) % CHUNK,
-                                              model.nq))]), model.values))[:len(shapes)]
-    out = [replace(e, sliding=labels(states[j], model.values.friction, phi[j], noise.tension,
-                                     [rows[j].sliding.get(t) == "stuck" for t in names]))
-           for j, e in enumerate(estimates)]
+    (:class:`~tendonsense.sliding.FrictionHistory`), and where a tendon is stuck the range of
+    the magnitudes over its band: the stuck rows estimated again as a series with each stuck
+    tendon pulled in and paid out."""
+    out = list(estimates)
+    states = np.array([e.friction_state for e in out])
     stuck_of = np.array([[d == "stuck" for d in e.sliding] for e in out]).reshape(states.shape)
     stuck = [j for j in range(len(out)) if stuck_of[j].any() and out[j].converged]
     if not stuck:

@@ -11,6 +11,7 @@ they are differentiable in X.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import NamedTuple
 
 import jax
@@ -45,7 +46,7 @@ class Structure:
         return ElementsBasis((0.0,) * (self.n_elements + 1), dict(self.degrees))(
             X, values.element_bounds, xp)
 
-    @property
+    @cached_property
     def nq(self) -> int:
         return self.n_elements * sum(d + 1 for _, d in self.degrees)
 

@@ -154,8 +154,11 @@ def reduced_jacobians(prob: Problem, x, drive, values: Values):
 
 
 def band(dz_dm: np.ndarray, n_lengths: int, tensions: np.ndarray, noise: Noise) -> np.ndarray:
-    """1-σ band of the magnitudes from their sensitivity ``dz_dm`` to [lengths; tensions]
-    (first-order propagation of the sensor noise, as in :mod:`tendonsense.estimation`)."""
-    scale = np.concatenate([np.full(n_lengths, noise.length),
-                            noise.tension * np.abs(tensions)])
-    return np.sqrt(((dz_dm * scale) ** 2).sum(axis=1))
+    """1-σ band of the magnitudes from their sensitivity ``dz_dm`` (…, n_z, m) to [lengths;
+    tensions] (first-order propagation of the sensor noise, as in
+    :mod:`tendonsense.estimation`); ``tensions`` (…, m − n_lengths)."""
+    tensions = np.asarray(tensions, float)
+    scale = np.concatenate([np.full((*tensions.shape[:-1], n_lengths), noise.length),
+                            noise.tension * np.abs(tensions)], axis=-1)
+    with np.errstate(all="ignore"):  # a failed sample's sensitivity may not be finite
+        return np.sqrt(((dz_dm * scale[..., None, :]) ** 2).sum(axis=-1))

@@ -22,7 +22,7 @@ from .online import RESCUE_BUDGET, OnlineEstimator
 from .problem import Problem, band  # noqa: F401 (API)
 from .result import SampleEstimate
 from .robot import Robot
-from .sliding import Band, FrictionHistory
+from .sliding import Band, FrictionHistory, labels
 from .statics import Drive, Unknowns, shape_outputs, solve_system
 
 
@@ -54,7 +54,8 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                   tensions: Sequence[Mapping[str, float]], noise: Noise = Noise(),
                   chunk: int = 100, values: Mapping[str, object] | None = None,
                   start: np.ndarray | None = None, history: FrictionHistory | None = None,
-                  given: np.ndarray | None = None, persistent: bool = True):
+                  given: np.ndarray | None = None, persistent: bool = True,
+                  stuck: np.ndarray | None = None):
     """:func:`estimate_series` as it goes: yields ``(first, estimates)`` for consecutive
     samples ``first, first + 1, …`` as each chunk is done. ``start``: the solution ``x`` of a
     reading near the first (e.g. the same row's earlier estimate) to warm-start from, instead
@@ -62,8 +63,10 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
 
     ``history``: every tendon's friction follows it along the series (compiled
     :func:`~tendonsense.fastpath.follower`; it is left as it stands after the last sample) and
-    each estimate carries its ``friction_state``; ``given`` (N, n_t) states the log sets
-    (+1 in, −1 out), NaN where the history decides.
+    each estimate carries its ``friction_state`` and each tendon's direction
+    (:func:`~tendonsense.sliding.labels`, at the turning of the history's last shape);
+    ``given`` (N, n_t) states the log sets (+1 in, −1 out), NaN where the history decides;
+    ``stuck`` (N, n_t) where the log says a tendon is stuck.
 
     A sample the compiled scan fails is solved on its own (a rescue); with ``persistent``
     False, only if the sample before it converged (a series that may have no solution over a
@@ -100,6 +103,7 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
     else:
         follow = follower(model.structure, prob.measured, prob.n_z, tcols, 4)
         given = np.full((n, len(robot.tendons)), np.nan) if given is None else given
+        stuck = np.zeros((n, len(robot.tendons)), bool) if stuck is None else stuck
         mu = np.asarray(model.values.friction, float)
     meas = list(prob.measured)
     valid = [k for k in range(n) if out[k] is None]
@@ -123,25 +127,28 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                 tr, states, bands = jax.device_get(follow(
                     np.asarray(x0, float), drives, prob.unknowns, model.values,
                     np.asarray(given[rows], float), Band.of(history)))
+            sigma = band(tr.dx_dm[:, model.nq:, :], len(meas), T[rows][:, list(tcols)], noise)
             for j, k in enumerate(run):
+                friction = {} if history is None else dict(
+                    friction_state=states[j],
+                    sliding=labels(states[j], mu, bands.phi[j], noise.tension, stuck[k]))
                 if tr.converged[j]:
-                    sigma = band(tr.dx_dm[j, model.nq:, :], len(meas), T[k, list(tcols)], noise)
                     out[k] = SampleEstimate(
-                        tr.x[j, model.nq:], sigma, dict(zip(robot.marker_names, tr.markers[j])),
-                        True, int(tr.iterations[j]), tr.x[j])
+                        tr.x[j, model.nq:], sigma[j],
+                        dict(zip(robot.marker_names, tr.markers[j])), True,
+                        int(tr.iterations[j]), tr.x[j], **friction)
                 elif not persistent and last_failed:
-                    out[k] = SampleEstimate.failed(
+                    out[k] = replace(SampleEstimate.failed(
                         prob, "not estimated: the sample before did not converge either",
-                        tr.x[j])
+                        tr.x[j]), **friction)
                 else:
                     v = model.values._replace(**{name: a[k] for name, a in varied.items()})
-                    out[k] = _from_result(estimate_problem(
+                    out[k] = replace(_from_result(estimate_problem(
                         prob, displacements[k], tensions[k], noise,
                         values=v if history is None else v._replace(friction=states[j] * mu),
-                        budget=RESCUE_BUDGET if seen_good else None))
+                        budget=RESCUE_BUDGET if seen_good else None)), **friction)
                 last_failed = not out[k].converged
                 if history is not None:
-                    out[k] = replace(out[k], friction_state=states[j])
                     Band(*(a[j] for a in bands)).into(history)
                 seen_good = seen_good or out[k].converged
                 if (not tr.converged[j] and out[k].converged and j + 1 < len(run)
