@@ -77,6 +77,7 @@ class CosseratBVP:
         self.routed = [(j, t) for j, t in enumerate(robot.tendons)
                        if t.continuous and self.T[j] != 0]
         self.fade = [lambda X: np.ones_like(X) for _ in self.routed]  # τ / T along the rod
+        self.remesh = None  # see :meth:`solve`
 
     def _radius(self, X):
         return self.robot.rod.radius(X)
@@ -194,9 +195,13 @@ class CosseratBVP:
         res += [tip[7:10] - F[-1], tip[10:13] - M[-1]]
         return np.concatenate(res)
 
-    def solve(self, steps=(0.25, 0.5, 0.75, 1.0), nodes=11, tol=1e-7, picard=30):
+    def solve(self, steps=(0.25, 0.5, 0.75, 1.0), nodes=11, tol=1e-7, picard=30,
+              remesh: int | None = None):
         """Load steps, then (continuous tendons with friction) Picard iterations on their
-        tension profiles until the tip moves less than 1e-10 m."""
+        tension profiles until the tip moves less than 1e-10 m. ``remesh``: each load step
+        starts from the last one's solution on that many uniform nodes (None: on the last
+        one's mesh, which each step only refines; over many steps it can outgrow memory)."""
+        self.remesh = remesh
         self._solve(steps, nodes, tol)
         if not any(t.friction for _, t in self.routed):
             return self
@@ -260,6 +265,9 @@ class CosseratBVP:
         if warm:
             s, y = self.solution.x, self.solution.y
         for lam in steps:
+            if sol is not None and self.remesh:
+                s = np.linspace(0.0, 1.0, self.remesh)
+                y = sol.sol(s)
             sol = solve_bvp(lambda s, y: self.ode(s, y, lam), lambda a, b: self.bc(a, b, lam),
                             s, y, tol=tol, max_nodes=20000)
             if sol.status != 0:
