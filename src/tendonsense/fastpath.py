@@ -191,16 +191,19 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         J, (r, s, rT) = jax.jacfwd(with_aux, has_aux=True)(x)
         return J, r, s, rT
 
-    def kkt(J):
-        """eq. 17 linearised: min ‖r_y + C dx‖² subject to r_E + A dx = 0, J = [A; C], as the
-        system [[CᵀC, Aᵀ], [A, 0]] [dx; λ]."""
-        A, C = J[:nq], J[nq:]
-        return jnp.block([[C.T @ C, A.T], [A, jnp.zeros((nq, nq))]])
-
     def gauss_newton(J, r):
-        C = J[nq:]
-        rhs = jnp.concatenate([-C.T @ r[nq:], -r[:nq]])
-        return linalg.solve(kkt(J), rhs)[:nq + n_z]
+        """eq. 17 linearised: ``dx`` of min ‖r_y + C dx‖² subject to r_E + A dx = 0 (J = [A; C],
+        r = [r_E; r_y], either (n,) or with columns), the constraint eliminated through
+        A = [A_q A_z]: dx_q = −A_q⁻¹(r_E + A_z dz), and dz by least squares on the rest."""
+        A_q, A_z, C_q, C_z = J[:nq, :nq], J[:nq, nq:], J[nq:, :nq], J[nq:, nq:]
+        rE, ry = r[:nq], r[nq:]
+        cols = rE.reshape(nq, -1)
+        sol = linalg.solve(A_q, jnp.concatenate([cols, A_z], axis=1))
+        a, M = -sol[:, :cols.shape[1]], -sol[:, cols.shape[1]:]
+        G = C_q @ M + C_z
+        h = ry.reshape(ry.shape[0], -1) + C_q @ a
+        dz = -linalg.solve(G.T @ G, G.T @ h)
+        return jnp.concatenate([a + M @ dz, dz]).reshape((nq + n_z, *r.shape[1:]))
 
     def init_ls(x0, d0, p0, unknowns, values):
         m0 = measurements(d0)
@@ -277,9 +280,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         Ry = jnp.zeros((x.size - n_z + sel.size, sel.size)).at[
             nq + jnp.arange(sel.size), jnp.arange(sel.size)].set(-vs[1].root_k)
         Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)
-        C = st["J"][nq:]
-        rhs = jnp.concatenate([-C.T @ Rm[nq:], -Rm[:nq]])
-        dx_dm = linalg.solve(kkt(st["J"]), rhs)[:nq + n_z]
+        dx_dm = gauss_newton(st["J"], Rm)
         return finish(carry, d, values, x, ok, fine, carry.H, dx_dm, st["evals"], st["jacs"])
 
     if len(measured) > n_z:
