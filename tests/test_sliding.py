@@ -84,7 +84,7 @@ def test_paid_out_at_a_high_load_has_two_equilibria(prototype):
     up, most of it the rod's compression under the tension grown toward the tip). The model
     still agrees with the BVP (load steps from a coarse mesh each) once the elements are
     halved, but that reading has a second equilibrium: the estimate from the straight rod
-    finds the rod curled up under about 1.8 N, and from the true shape it finds 0.3 N (the
+    finds the rod curled up with 1.8 N pushing up on the tip, and from the true shape 0.3 N (the
     manual's Validation section says so; it changes with this test)."""
     inner = tuple(x for x in prototype.tendons[0].disks if 0 < x < prototype.rod.length)
     cuts = (0.0, *inner, prototype.rod.length)

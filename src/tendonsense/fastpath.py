@@ -276,7 +276,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         fine = admissible(vs[0], x[:nq])
         ok = (st["status"] == 1) & fine
         # Gauss–Newton sensitivity to the measurements [y_meas; T] (as the uncertainty of
-        # eq. 17 in :mod:`tendonsense.estimation`): the same KKT system, right-hand side R_m
+        # eq. 17 in :mod:`tendonsense.estimation`): the same elimination, right-hand side R_m
         Ry = jnp.zeros((x.size - n_z + sel.size, sel.size)).at[
             nq + jnp.arange(sel.size), jnp.arange(sel.size)].set(-vs[1].root_k)
         Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)

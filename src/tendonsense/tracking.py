@@ -22,7 +22,7 @@ from .online import RESCUE_BUDGET, OnlineEstimator
 from .problem import Problem, band  # noqa: F401 (API)
 from .result import SampleEstimate
 from .robot import Robot
-from .sliding import Band, FrictionHistory, labels
+from .sliding import Band, FrictionHistory, labels, turning_program
 from .statics import Drive, Unknowns, shape_outputs, solve_system
 
 
@@ -64,7 +64,7 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
     ``history``: every tendon's friction follows it along the series (compiled
     :func:`~tendonsense.fastpath.follower`; it is left as it stands after the last sample) and
     each estimate carries its ``friction_state`` and each tendon's direction
-    (:func:`~tendonsense.sliding.labels`, at the turning of the history's last shape);
+    (:func:`~tendonsense.sliding.labels`, at the turning of its own shape);
     ``given`` (N, n_t) states the log sets (+1 in, −1 out), NaN where the history decides;
     ``stuck`` (N, n_t) where the log says a tendon is stuck.
 
@@ -147,6 +147,11 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                         prob, displacements[k], tensions[k], noise,
                         values=v if history is None else v._replace(friction=states[j] * mu),
                         budget=RESCUE_BUDGET if seen_good else None)), **friction)
+                    if history is not None and out[k].converged:  # labelled at its own turning
+                        phi = np.asarray(turning_program(model.structure)(
+                            out[k].x[None, :model.nq], model.values))[0]
+                        out[k] = replace(out[k], sliding=labels(states[j], mu, phi,
+                                                                noise.tension, stuck[k]))
                 last_failed = not out[k].converged
                 if history is not None:
                     Band(*(a[j] for a in bands)).into(history)
