@@ -134,6 +134,9 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
     values, signs = prob.model.values, inputs.friction_signs(robot, sliding)  # stuck: 0
     mid = estimate_problem(prob, displacements, tensions, noise, x0,
                            values._replace(friction=values.friction * signs))
+    if (signs < 0).any() and x0 is None and not prob.located:
+        mid = _other_equilibrium(prob, displacements, tensions, noise,
+                                 values._replace(friction=values.friction * signs), mid)
     if not stuck:
         return mid
     ends, open_ends = [], []
@@ -151,6 +154,45 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
             f"no equilibrium at the friction band's end ({' / '.join(open_ends)}): the range "
             "is open on that side")]))
     return dataclasses.replace(mid, extra=extra)
+
+
+#: markers further apart than this (m) are two equilibria, not one solved twice
+SAME_EQUILIBRIUM = 1e-6
+
+
+def _other_equilibrium(prob: Problem, displacements, tensions, noise: Noise, values: Values,
+                       found: Result) -> Result:
+    """``found`` (estimated from the straight rod with a tendon paid out), and where a second
+    equilibrium explains the same readings, said so. Paid out, a tendon's tension grows toward
+    its anchor and one reading can have two (the prototype at 2.4 N: 0.3 N down on the tip,
+    or the rod curled up with 1.8 N pushing up). The readings are estimated again from the
+    shape their tensions give without the unknown loads (forward statics: its last iterate,
+    a start, whether or not it converged); if that converges elsewhere,
+    ``extra['other_estimate']`` holds its magnitudes, 1-σ band and markers and the note says
+    the reading is ambiguous. Only a second start: an equilibrium neither start reaches goes
+    unseen."""
+    if not found.converged:
+        return found
+    T, y = prob.readings(displacements, tensions)
+    drive = prob.drive(T, y[list(prob.measured)])
+    unloaded = solve_system(prob.model.structure, values, (), drive,
+                            Unknowns.none(len(T), drive.load_X.shape[0]))
+    start = np.concatenate([np.asarray(unloaded.x), np.zeros(prob.n_z)])
+    if not np.isfinite(start).all():
+        return found
+    other = estimate_problem(prob, displacements, tensions, noise, start, values)
+    apart = max(float(np.linalg.norm(np.subtract(p, other.markers[m])))
+                for m, p in found.markers.items()) if found.markers else 0.0
+    if not other.converged or not apart > SAME_EQUILIBRIUM:
+        return found
+    note = (f"ambiguous: another equilibrium explains these readings too, with magnitudes "
+            f"{', '.join(f'{m:.4g}' for m in other.magnitudes)} (markers up to "
+            f"{apart * 1e3:.1f} mm away; found from the shape without the unknown loads); a "
+            f"paid-out tendon's reading alone cannot tell them apart")
+    return dataclasses.replace(found, extra={
+        **found.extra, "note": "; ".join(filter(None, [found.extra.get("note"), note])),
+        "other_estimate": {"magnitudes": other.magnitudes, "sigma": other.sigma,
+                           "markers": other.markers}})
 
 
 def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Noise(),
