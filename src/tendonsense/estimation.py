@@ -156,8 +156,9 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
     return dataclasses.replace(mid, extra=extra)
 
 
-#: markers further apart than this (m) are two equilibria, not one solved twice
-SAME_EQUILIBRIUM = 1e-6
+#: markers further apart than this (m), or magnitudes further apart than this (relative),
+#: are two equilibria, not one solved twice
+SAME_EQUILIBRIUM, SAME_MAGNITUDE = 1e-6, 1e-6
 
 
 def _other_equilibrium(prob: Problem, displacements, tensions, noise: Noise, values: Values,
@@ -181,9 +182,11 @@ def _other_equilibrium(prob: Problem, displacements, tensions, noise: Noise, val
     if not np.isfinite(start).all():
         return found
     other = estimate_problem(prob, displacements, tensions, noise, start, values)
-    apart = max(float(np.linalg.norm(np.subtract(p, other.markers[m])))
-                for m, p in found.markers.items()) if found.markers else 0.0
-    if not other.converged or not apart > SAME_EQUILIBRIUM:
+    apart = max((float(np.linalg.norm(np.subtract(p, other.markers[m])))
+                 for m, p in found.markers.items()), default=0.0)
+    moved = np.abs(np.subtract(other.magnitudes, found.magnitudes)) > SAME_MAGNITUDE * (
+        1.0 + np.abs(found.magnitudes))
+    if not other.converged or not (apart > SAME_EQUILIBRIUM or moved.any()):
         return found
     note = (f"ambiguous: another equilibrium explains these readings too, with magnitudes "
             f"{', '.join(f'{m:.4g}' for m in other.magnitudes)} (markers up to "
