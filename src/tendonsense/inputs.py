@@ -139,14 +139,6 @@ SLIDING = ("in", "out", "stuck")
 EDGE = 1e-9
 
 
-def direction(state: float, reach: float = 0.0) -> str:
-    """``in``, ``out`` or ``stuck`` for a friction state in [−1, 1] (+1 pulled in); a state
-    within ``reach`` of an edge (the tension noise's, :func:`~tendonsense.sliding.reach`)
-    reads as that edge."""
-    edge = max(EDGE, float(reach))
-    return "in" if state >= 1 - edge else "out" if state <= -1 + edge else "stuck"
-
-
 #: a tendon's friction direction in a simulation: pulled in, paid out, or following its
 #: tension history (the play operator of :mod:`tendonsense.sliding`)
 SIMULATED_SLIDING = ("in", "out", "follow")

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .compiled import Program
-from .inputs import direction
+from .inputs import EDGE, SLIDING
 from .model import Structure
 from .statics import CACHE_SIZE
 from .tendons import turning
@@ -43,18 +43,24 @@ def reach(mu, phi, tension_noise: float) -> np.ndarray:
     """How far into its band, in units of the state, read-out noise of relative standard
     deviation ``tension_noise`` can take a tendon of friction ``mu`` turning by ``phi``:
     ``NOISE_REACH σ / (μφ)`` (0 without a band: the state is then ±1). A state that close to
-    ±1 is labelled by the edge (in or out, :func:`~tendonsense.inputs.direction`), not stuck."""
+    ±1 is labelled by the edge (in or out, :func:`labels`), not stuck."""
     band = np.asarray(mu, float) * np.asarray(phi, float)
     return np.where(band > 0, NOISE_REACH * tension_noise / np.where(band > 0, band, 1.0), 0.0)
 
 
-def labels(states, mu, phi, tension_noise: float, stuck_given) -> tuple[str, ...]:
-    """Each tendon's direction (:func:`~tendonsense.inputs.direction`) from its friction state,
-    a state within the tension noise's :func:`reach` of its band's edge read as that edge, and
-    ``stuck`` wherever ``stuck_given`` (the log said so)."""
-    edge = reach(mu, phi, tension_noise)
-    return tuple("stuck" if given else direction(v, e)
-                 for v, e, given in zip(states, edge, stuck_given))
+def labels(states, mu, phi, tension_noise: float, stuck_given):
+    """Each tendon's direction, ``in``, ``out`` or ``stuck``, from its friction state in
+    [−1, 1] (+1 pulled in), a state within the tension noise's :func:`reach` of its band's edge
+    (at least :data:`~tendonsense.inputs.EDGE`) read as that edge, and
+    ``stuck`` wherever ``stuck_given`` (the log said so): a tuple for states (n_t,), a list of
+    tuples, one a reading, for states (N, n_t)."""
+    states = np.asarray(states, float)
+    edge = np.maximum(EDGE, reach(mu, phi, tension_noise))
+    code = np.select([np.asarray(stuck_given, bool), states >= 1 - edge, states <= -1 + edge],
+                     [2, 0, 1], 2)  # indices into SLIDING: a NaN state is stuck
+    if code.ndim == 1:
+        return tuple(SLIDING[c] for c in code.tolist())
+    return [tuple(SLIDING[c] for c in row) for row in code.tolist()]
 
 
 @lru_cache(maxsize=CACHE_SIZE)

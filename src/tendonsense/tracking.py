@@ -128,10 +128,12 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                     np.asarray(x0, float), drives, prob.unknowns, model.values,
                     np.asarray(given[rows], float), Band.of(history)))
             sigma = band(tr.dx_dm[:, model.nq:, :], len(meas), T[rows][:, list(tcols)], noise)
+            if history is not None:
+                said = labels(states[:len(run)], mu, bands.phi[:len(run)], noise.tension,
+                              stuck[run])
             for j, k in enumerate(run):
-                friction = {} if history is None else dict(
-                    friction_state=states[j],
-                    sliding=labels(states[j], mu, bands.phi[j], noise.tension, stuck[k]))
+                friction = {} if history is None else dict(friction_state=states[j],
+                                                           sliding=said[j])
                 if tr.converged[j]:
                     out[k] = SampleEstimate(
                         tr.x[j, model.nq:], sigma[j],
@@ -153,12 +155,12 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                         out[k] = replace(out[k], sliding=labels(states[j], mu, phi,
                                                                 noise.tension, stuck[k]))
                 last_failed = not out[k].converged
-                if history is not None:
-                    Band(*(a[j] for a in bands)).into(history)
                 seen_good = seen_good or out[k].converged
                 if (not tr.converged[j] and out[k].converged and j + 1 < len(run)
                         and not tr.converged[j + 1]):
                     break  # failures that follow a failure: scanned again from its solution
+            if history is not None:  # as it stands after the last sample taken
+                Band(*(a[j] for a in bands)).into(history)
             pos += j + 1
             x0 = next((out[k].x for k in reversed(run[:j + 1]) if out[k].converged), x0)
         end = idx[-1] + 1 if at + chunk < len(valid) else n
