@@ -133,3 +133,31 @@ def test_least_squares_scan_converges_noisy_samples_itself(prototype, monkeypatc
     for k in range(1, n, 8):
         ref = plain(prob, disp[k], ten[k])
         np.testing.assert_allclose(fast[k].magnitudes, ref.magnitudes, rtol=1e-6)
+
+
+def test_a_log_scan_stops_at_a_failure_and_skips_padding(log):
+    """The log's compiled scan attempts no sample after a failure that follows a converged one
+    (the caller solves it on its own and scans again after it), scans through failures in a
+    row, and never solves the padding after ``count`` samples."""
+    from tendonsense.fastpath import stacked_drives, tracker
+    prob, F, disp, ten = log
+    T, Y = map(np.array, zip(*(prob.readings(d, t) for d, t in zip(disp[:8], ten[:8]))))
+    T[3:5, 0] = 2000.0  # a unit slip: no equilibrium within the model's strain range
+    model, meas = prob.model, list(prob.measured)
+    track = tracker(model.structure, prob.measured, prob.n_z, (0,), 4, until_failure=True)
+
+    def scan(rows, count, failing, x0):
+        tr = track(x0, stacked_drives(prob, T[rows], Y[rows][:, meas]), prob.unknowns,
+                   model.values, {}, count, failing)
+        return np.asarray(tr.converged), np.asarray(tr.iterations), np.asarray(tr.x)
+
+    conv, its, x = scan(range(8), 7, False, np.zeros(model.nq + prob.n_z))
+    assert conv[:3].all() and not conv[3]
+    assert (its[:4] > 0).all() and (its[4:] == 0).all()
+    # the sample before failed: failures in a row are scanned through, then the padding
+    conv, its, _ = scan([3, 4, 5, 6, 7, 7], 5, True, x[2])
+    assert not conv[:2].any() and conv[2:5].all()
+    assert (its[:5] > 0).all() and its[5] == 0
+    np.testing.assert_allclose(x[2, model.nq:], F[2], rtol=1e-8)
+    conv, its, _ = scan([3, 4, 5, 6, 7, 7], 5, False, x[2])
+    assert not conv[0] and (its[1:] == 0).all()

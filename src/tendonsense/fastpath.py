@@ -26,7 +26,7 @@ from .compiled import Program
 from .kinematics import poses, positions
 from .model import Structure, points_at
 from .problem import Problem
-from .sliding import FIXED_POINT, STATE_TOL, Band, play, pulled
+from .sliding import FIXED_POINT, STATE_TOL, play, pulled
 from .statics import (CACHE_SIZE, Drive, Scaling, admissible, residual, scaling)
 
 
@@ -288,33 +288,67 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
     return init, step
 
 
+def _until_failure(sample, carry, xs, count, failing):
+    """``lax.scan(sample, carry, xs)``'s outputs over the first ``count`` samples (the rest
+    padding), stopped at a failure after a converged sample (``ys[0]`` a :class:`Track` row;
+    ``failing``: the sample before the first failed): each sample after it, and the padding,
+    is not attempted (its track row not converged, 0 iterations). The caller solves such a
+    failure its own way and scans again after it; failures in a row (no solution over a
+    stretch) are scanned through."""
+    blank = _zeros(jax.eval_shape(sample, carry, jax.tree_util.tree_map(lambda a: a[0], xs))[1])
+
+    def body(c, xs):
+        carry, stop, failed, k = c
+        carry, ys = jax.lax.cond(stop | (k >= count), lambda: (carry, blank),
+                                 lambda: sample(carry, xs))
+        fails = ~ys[0].converged
+        return (carry, stop | (fails & ~failed), fails, k + 1), ys
+
+    return jax.lax.scan(body, (carry, jnp.asarray(False), jnp.asarray(failing), 0), xs)[1]
+
+
+def _zeros(tree):
+    return jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), tree)
+
+
 @lru_cache(maxsize=CACHE_SIZE)
 def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
-            tension_columns: tuple[int, ...], exact_every: int = 1, step_tol: float = 1e-8):
+            tension_columns: tuple[int, ...], exact_every: int = 1, step_tol: float = 1e-8,
+            until_failure: bool = False):
     """Compiled ``track(x0, drives, unknowns, values, varied) -> Track`` for a square system
     (``len(measured) == n_z``) or least squares (more measured tendons); ``drives`` is a
     :class:`Drive` and ``varied`` a dict of values by name
     (:data:`~tendonsense.model.VALUE_NAMES`, may be empty), both with a leading sample axis.
     The sensitivity columns are the measured lengths, then the tensions of the tendons
     ``tension_columns``. A least-squares sample is stationary when its Gauss–Newton step in z
-    is below ``step_tol`` relative (a coarse value suits a profile that is refined later)."""
+    is below ``step_tol`` relative (a coarse value suits a profile that is refined later).
+    ``until_failure``: ``track`` takes two more arguments, ``count`` and ``failing``, and
+    stops early (0 iterations from there): after the first ``count`` samples (the rest
+    padding) and after a failure that follows a converged sample (``failing``: the sample
+    before the first failed)."""
     init, step = _sample_fns(structure, measured, n_z, tension_columns, exact_every, step_tol)
 
-    def track(x0, drives, unknowns, values, varied):
+    def track(x0, drives, unknowns, values, varied, *count_failing):
         d0, p0 = jax.tree_util.tree_map(lambda a: a[0], (drives, varied))
         carry = init(x0, d0, p0, unknowns, values)
-        _, out = jax.lax.scan(lambda c, dp: step(c, *dp, unknowns, values), carry,
-                              (drives, varied))
-        return out
+
+        def one(c, dp):
+            c, row = step(c, *dp, unknowns, values)
+            return c, (row,)
+
+        if until_failure:
+            return _until_failure(one, carry, (drives, varied), *count_failing)[0]
+        return jax.lax.scan(one, carry, (drives, varied))[1][0]
 
     return Program(track, "tracker", (structure, measured, n_z, tension_columns, exact_every,
-                                       step_tol))
+                                       step_tol, until_failure))
 
 
 @lru_cache(maxsize=CACHE_SIZE)
 def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
              tension_columns: tuple[int, ...], exact_every: int = 1):
-    """Compiled ``follow(x0, drives, unknowns, values, given, band) -> (Track, states, bands)``:
+    """Compiled ``follow(x0, drives, unknowns, values, given, band, count, failing) -> (Track,
+    states, bands)``, stopping early as :func:`tracker`'s ``until_failure``:
     :func:`tracker` with every tendon's friction following its history
     (:mod:`tendonsense.sliding`). A sample that keeps every tendon pulled in is solved with
     friction μ; any other with friction s μ, its state s settled at its own shape by up to
@@ -325,7 +359,7 @@ def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
     init, step = _sample_fns(structure, measured, n_z, tension_columns, exact_every)
     nq = structure.nq
 
-    def follow(x0, drives, unknowns, values, given, band):
+    def follow(x0, drives, unknowns, values, given, band, count, failing):
         mu = values.friction
 
         def solve(carry, d, s):
@@ -356,15 +390,14 @@ def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
                 return (k + 1, new, tr, jnp.where(done, s, s_own),
                         kept(failed, band, after_own), done)
 
-            blank = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype),
-                                           jax.eval_shape(solve, carry, d, ones)[1])
+            blank = _zeros(jax.eval_shape(solve, carry, d, ones)[1])
             _, new, tr, s, band, _ = jax.lax.while_loop(
                 lambda st: ~st[-1], again, (0, carry, blank, ones, band, jnp.asarray(False)))
             return (new, band), (tr, s, band)
 
         carry = init(x0, jax.tree_util.tree_map(lambda a: a[0], drives),
                      {"friction": mu}, unknowns, values)
-        return jax.lax.scan(sample, (carry, band), (drives, given))[1]
+        return _until_failure(sample, (carry, band), (drives, given), count, failing)
 
     return Program(follow, "follower", (structure, measured, n_z, tension_columns,
                                          exact_every))

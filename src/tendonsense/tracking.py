@@ -99,7 +99,7 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
             out[k] = SampleEstimate.failed(prob, f"bad value: {exc}")
     tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.any(T != 0, axis=0)))))
     if history is None:
-        track = tracker(model.structure, prob.measured, prob.n_z, tcols, 4)
+        track = tracker(model.structure, prob.measured, prob.n_z, tcols, 4, until_failure=True)
     else:
         follow = follower(model.structure, prob.measured, prob.n_z, tcols, 4)
         given = np.full((n, len(robot.tendons)), np.nan) if given is None else given
@@ -116,17 +116,18 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
         pos = 0
         while pos < len(idx):
             run = idx[pos:]
-            # a fixed scan length (padded with the last sample) keeps one compiled tracker
+            # a fixed scan length (padded with the last sample, not solved) keeps one program
             rows = list(run) + [run[-1]] * (chunk - len(run))
             drives = stacked_drives(prob, T[rows], Y[rows][:, meas])
             if history is None:
                 tr = jax.device_get(track(
                     np.asarray(x0, float), drives, prob.unknowns, model.values,
-                    {name: np.asarray(v[rows], float) for name, v in varied.items()}))
+                    {name: np.asarray(v[rows], float) for name, v in varied.items()},
+                    len(run), last_failed))
             else:
                 tr, states, bands = jax.device_get(follow(
                     np.asarray(x0, float), drives, prob.unknowns, model.values,
-                    np.asarray(given[rows], float), Band.of(history)))
+                    np.asarray(given[rows], float), Band.of(history), len(run), last_failed))
             sigma = band(tr.dx_dm[:, model.nq:, :], len(meas), T[rows][:, list(tcols)], noise)
             if history is not None:
                 said = labels(states[:len(run)], mu, bands.phi[:len(run)], noise.tension,
@@ -156,9 +157,8 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                                                                 noise.tension, stuck[k]))
                 last_failed = not out[k].converged
                 seen_good = seen_good or out[k].converged
-                if (not tr.converged[j] and out[k].converged and j + 1 < len(run)
-                        and not tr.converged[j + 1]):
-                    break  # failures that follow a failure: scanned again from its solution
+                if j + 1 < len(run) and tr.iterations[j + 1] == 0:
+                    break  # the scan stopped at this failure: scanned again after it
             if history is not None:  # as it stands after the last sample taken
                 Band(*(a[j] for a in bands)).into(history)
             pos += j + 1
