@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -196,6 +197,37 @@ def test_handing_logs_to_a_cluster_loads_no_solver(client, logs, tmp_path):
                          capture_output=True, text=True, timeout=600)
     assert run.stdout.splitlines()[-1] == "0 False", run.stdout + run.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(forces)
+
+
+def test_workers_forked_from_a_process_without_jax(prototype, logs, tmp_path):
+    """From a process that has not loaded JAX (one that hands logs over), the local workers
+    are forked: they start with this process's modules, Dask's among them; the logs come out
+    as here, and the workers are gone after."""
+    folder, forces = logs
+    there, here = tmp_path / "there", tmp_path / "here"
+    there.mkdir()
+    here.mkdir()
+    paths = sorted(str(p) for p in folder.glob("run*.csv"))
+    script = (
+        "import os, sys\n"
+        "from tendonsense.distributed import cluster, estimate_logs\n"
+        "from tendonsense.inputs import PointForceUnknown\n"
+        "from tendonsense.robot import load_robot\n"
+        f"robot = load_robot({str(PROTOTYPE)!r})\n"
+        "with cluster(2) as c:\n"
+        "    forked = c.run(lambda: 'tendonsense.distributed' in sys.modules)\n"
+        "    pids = list(c.run(os.getpid).values())\n"
+        f"    done = estimate_logs(c, robot, {paths!r}, {str(there)!r},\n"
+        "                         [PointForceUnknown(0.25, (0, 0, -1))])\n"
+        "print(sorted(forked.values()), 'jax' in sys.modules, [s.error for s in done], pids)\n")
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         timeout=600)
+    *head, pids = run.stdout.splitlines()[-1].rsplit(" [", 1)
+    assert head == ["[True, True] False [None, None, None]"], run.stdout + run.stderr
+    assert _gone([int(p) for p in pids.rstrip("]").split(",")])
+    estimate_logs(None, prototype, [Path(p) for p in paths], here, TIP)
+    for name in forces:
+        assert (there / name).read_text() == (here / name).read_text()
 
 
 @pytest.mark.parametrize("argv, message", [

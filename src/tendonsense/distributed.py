@@ -18,6 +18,7 @@ a cluster (:func:`estimate_logs`) never loads them.
 from __future__ import annotations
 
 import os
+import sys
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterator, Mapping, Sequence
@@ -41,6 +42,8 @@ TASK_SIZE = 1000
 RETRIES = 3
 #: Dask's switch for a worker's statistical profiler, off on a local cluster (:func:`cluster`)
 PROFILER = "distributed.worker.profile.enabled"
+#: Dask's switch for how a local worker process starts (spawn, fork or forkserver)
+START_METHOD = "distributed.worker.multiprocessing-method"
 
 Progress = Callable[[int, int], None]
 
@@ -64,7 +67,9 @@ def cluster(workers: int = 2, scheduler: str | None = None,
     do not run Dask's statistical profiler (:data:`PROFILER`; on a cluster of your own, set
     it false in the workers' Dask config for the same gain) and, when there are no more of
     them than cores, each keeps to a core of its own (:func:`~tendonsense.settings.pin`: XLA's
-    threads then never wait for an idle core to wake).
+    threads then never wait for an idle core to wake). On Linux, from a process that has not
+    loaded JAX, the local workers are forked (they start with Dask already imported); else
+    spawned, Dask's default.
 
     >>> with cluster(2) as client:
     ...     out = solve_batch(client, robot, {"t1": np.full(2000, 2.0)})
@@ -82,10 +87,15 @@ def cluster(workers: int = 2, scheduler: str | None = None,
         raise ValueError(f"a local cluster needs at least one worker, not {workers}")
     import dask
     folder = cache_dir()
+    # the workers' statistical profiler (a stack sample every 10 ms) slows a task of compiled
+    # batches by about a fifth on two cores; the workers take this config
+    config = {PROFILER: False}
+    if sys.platform.startswith("linux") and "jax" not in sys.modules:
+        # forked from this process, a worker starts with Dask imported (0.08 s against
+        # 0.45 s spawned, two workers on two cores); JAX's threads would not survive a fork
+        config[START_METHOD] = "fork"
     try:
-        # the workers' statistical profiler (a stack sample every 10 ms) slows a task of
-        # compiled batches by about a fifth on two cores; the workers take this config
-        with dask.config.set({PROFILER: False}):
+        with dask.config.set(config):
             local = distributed.LocalCluster(
                 n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                 scheduler_kwargs={"dashboard_address": ":0"}, memory_limit=0,
