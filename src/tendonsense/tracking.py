@@ -157,8 +157,9 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                                                                 noise.tension, stuck[k]))
                 last_failed = not out[k].converged
                 seen_good = seen_good or out[k].converged
-                if j + 1 < len(run) and tr.iterations[j + 1] == 0:
-                    break  # the scan stopped at this failure: scanned again after it
+                if j + 1 < len(run) and (tr.iterations[j + 1] == 0 or (
+                        not tr.converged[j] and out[k].converged and not tr.converged[j + 1])):
+                    break  # the scan stopped here, or failed on after a rescue: again after it
             if history is not None:  # as it stands after the last sample taken
                 Band(*(a[j] for a in bands)).into(history)
             pos += j + 1
