@@ -453,3 +453,20 @@ def test_simulate_follows_the_friction_history():
     assert np.abs(follow.displacements["t1"] - pulled.displacements["t1"]).max() > 3e-3
     with pytest.raises(ValueError, match="sliding t1='stuck'"):
         run(sliding={"t1": "stuck"})
+
+
+def test_direction_labels_by_the_state_and_the_noise_reach():
+    """A state at or within the tension noise's reach of ±1 (3σ / μφ) reads as that edge,
+    one inside the band, or NaN (slack), as stuck, and so does a tendon the log says is stuck;
+    a scan's (N, n_t) states are labelled as each row on its own."""
+    from tendonsense.sliding import labels
+    mu, phi = np.array([0.4, 0.4, 0.0]), np.array([0.5, 0.5, 0.5])  # reach 3 σ / 0.2 = 0.15
+    assert labels([0.9, -0.9, 1.0], mu, phi, 0.01, [False] * 3) == ("in", "out", "in")
+    assert labels([0.8, np.nan, -1.0], mu, phi, 0.01, [False] * 3) == ("stuck", "stuck", "out")
+    assert labels([1.0, -1.0, 0.0], mu, phi, 0.01, [True, False, False]) == (
+        "stuck", "out", "stuck")
+    rng = np.random.default_rng(0)
+    states, angles = rng.uniform(-1.1, 1.1, (50, 3)), rng.uniform(0.0, 1.0, (50, 3))
+    stuck = rng.uniform(size=(50, 3)) < 0.2
+    assert labels(states, mu, angles, 0.02, stuck) == [
+        labels(s, mu, p, 0.02, g) for s, p, g in zip(states, angles, stuck)]

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .compiled import Program
-from .inputs import EDGE, SLIDING
+from .inputs import EDGE
 from .model import Structure
 from .statics import CACHE_SIZE
 from .tendons import turning
@@ -51,16 +51,21 @@ def reach(mu, phi, tension_noise: float) -> np.ndarray:
 def labels(states, mu, phi, tension_noise: float, stuck_given):
     """Each tendon's direction, ``in``, ``out`` or ``stuck``, from its friction state in
     [−1, 1] (+1 pulled in), a state within the tension noise's :func:`reach` of its band's edge
-    (at least :data:`~tendonsense.inputs.EDGE`) read as that edge, and
-    ``stuck`` wherever ``stuck_given`` (the log said so): a tuple for states (n_t,), a list of
-    tuples, one a reading, for states (N, n_t)."""
-    states = np.asarray(states, float)
-    edge = np.maximum(EDGE, reach(mu, phi, tension_noise))
-    code = np.select([np.asarray(stuck_given, bool), states >= 1 - edge, states <= -1 + edge],
-                     [2, 0, 1], 2)  # indices into SLIDING: a NaN state is stuck
-    if code.ndim == 1:
-        return tuple(SLIDING[c] for c in code.tolist())
-    return [tuple(SLIDING[c] for c in row) for row in code.tolist()]
+    (at least :data:`~tendonsense.inputs.EDGE`) read as that edge, and ``stuck`` wherever
+    ``stuck_given`` (the log said so): a tuple for states (n_t,), a list of tuples, one a
+    reading, for states (N, n_t) and ``phi`` of the same shape."""
+    edge = reach(mu, phi, tension_noise).tolist()
+    if np.ndim(states) == 1:
+        return tuple(map(_direction, np.asarray(states, float).tolist(), edge,
+                         np.asarray(stuck_given, bool).tolist()))
+    return [tuple(map(_direction, *row)) for row in zip(
+        np.asarray(states, float).tolist(), edge, np.asarray(stuck_given, bool).tolist())]
+
+
+def _direction(state: float, reach: float, stuck: bool) -> str:
+    edge = max(EDGE, reach)  # a NaN state compares False: stuck
+    return "stuck" if stuck else "in" if state >= 1 - edge else "out" if state <= -1 + edge \
+        else "stuck"
 
 
 @lru_cache(maxsize=CACHE_SIZE)
