@@ -199,10 +199,12 @@ def test_handing_logs_to_a_cluster_loads_no_solver(client, logs, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(forces)
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forked workers: Linux")
 def test_workers_forked_from_a_process_without_jax(prototype, logs, tmp_path):
-    """From a process that has not loaded JAX (one that hands logs over), the local workers
-    are forked: they start with this process's modules, Dask's among them; the logs come out
-    as here, and the workers are gone after."""
+    """From a process of one thread that has not loaded JAX (one that hands logs over), the
+    local workers are forked: they start with this process's modules and values; the logs
+    come out as here, and the workers are gone after. Dask's config restored, a worker
+    started again is spawned, as is every worker of a process that has loaded JAX."""
     folder, forces = logs
     there, here = tmp_path / "there", tmp_path / "here"
     there.mkdir()
@@ -210,21 +212,31 @@ def test_workers_forked_from_a_process_without_jax(prototype, logs, tmp_path):
     paths = sorted(str(p) for p in folder.glob("run*.csv"))
     script = (
         "import os, sys\n"
-        "from tendonsense.distributed import cluster, estimate_logs\n"
+        "import dask\n"
+        "import tendonsense.distributed as d\n"
         "from tendonsense.inputs import PointForceUnknown\n"
         "from tendonsense.robot import load_robot\n"
         f"robot = load_robot({str(PROTOTYPE)!r})\n"
-        "with cluster(2) as c:\n"
-        "    forked = c.run(lambda: 'tendonsense.distributed' in sys.modules)\n"
-        "    pids = list(c.run(os.getpid).values())\n"
-        f"    done = estimate_logs(c, robot, {paths!r}, {str(there)!r},\n"
-        "                         [PointForceUnknown(0.25, (0, 0, -1))])\n"
-        "print(sorted(forked.values()), 'jax' in sys.modules, [s.error for s in done], pids)\n")
+        "d.NONCE = 12345\n"
+        "def nonce():\n"
+        "    import tendonsense.distributed as d\n"
+        "    return getattr(d, 'NONCE', None)\n"
+        "with d.cluster(2) as c:\n"
+        "    forked = sorted(c.run(nonce).values(), key=str)\n"
+        "    method = dask.config.get(d.START_METHOD)\n"
+        "    pids = sorted(c.run(os.getpid).values())\n"
+        f"    done = d.estimate_logs(c, robot, {paths!r}, {str(there)!r},\n"
+        "                           [PointForceUnknown(0.25, (0, 0, -1))])\n"
+        "import jax\n"
+        "with d.cluster(2) as c:\n"
+        "    spawned = sorted(c.run(nonce).values(), key=str)\n"
+        "print(forked, method, [s.error for s in done], spawned, 'pids', *pids)\n")
     run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                          timeout=600)
-    *head, pids = run.stdout.splitlines()[-1].rsplit(" [", 1)
-    assert head == ["[True, True] False [None, None, None]"], run.stdout + run.stderr
-    assert _gone([int(p) for p in pids.rstrip("]").split(",")])
+    assert run.returncode == 0, run.stderr
+    result, pids = run.stdout.splitlines()[-1].split(" pids ")
+    assert result == "[12345, 12345] spawn [None, None, None] [None, None]"
+    assert _gone([int(p) for p in pids.split()])
     estimate_logs(None, prototype, [Path(p) for p in paths], here, TIP)
     for name in forces:
         assert (there / name).read_text() == (here / name).read_text()

@@ -161,3 +161,31 @@ def test_a_log_scan_stops_at_a_failure_and_skips_padding(log):
     np.testing.assert_allclose(x[2, model.nq:], F[2], rtol=1e-8)
     conv, its, _ = scan([3, 4, 5, 6, 7, 7], 5, False, x[2])
     assert not conv[0] and (its[1:] == 0).all()
+
+
+def test_a_series_goes_on_after_failed_samples(log):
+    """Samples the scan fails (a unit slip: 2000 N, no equilibrium within the model's strain
+    range), in a row and across a chunk's border, are marked not converged, and every other
+    sample is estimated as without them: on the scan (`estimate_series`, against the truth)
+    and following the friction history (a log, against the log without those rows)."""
+    from tendonsense.logs import estimate_readings
+    from tendonsense.readings import Sample
+    prob, F, disp, ten = log
+    bad = [3, 4, 15, 16]  # chunks of 16: rows 15 and 16 on either side of a border
+    slipped = [{"t1": 2000.0} if k in bad else t for k, t in enumerate(ten)]
+    series = estimate_series(prob, disp, slipped, chunk=16)
+    assert [k for k, e in enumerate(series) if not e.converged] == bad
+    good = [k for k in range(len(F)) if k not in bad]
+    np.testing.assert_allclose([series[k].magnitudes[0] for k in good], F[good], rtol=1e-7)
+
+    def logged(rows):
+        samples = [Sample(j + 1, 0.01 * k, {"t1": slipped[k]["t1"], "t2": 0.0, "t3": 0.0},
+                          disp[k], {}) for j, k in enumerate(rows)]
+        return estimate_readings(prob.robot, ["t1"], samples,
+                                 [PointForceUnknown(0.25, (0, 0, -1))])
+
+    with_slips, without = logged(range(len(F))), logged(good)
+    assert [k for k, e in enumerate(with_slips) if not e.converged] == bad
+    assert all(e.converged for e in without)
+    np.testing.assert_allclose([with_slips[k].magnitudes[0] for k in good],
+                               [e.magnitudes[0] for e in without], rtol=1e-6)

@@ -1071,9 +1071,9 @@ def _logs(args, robot) -> int:
     status 1 if a log failed, 3 if a row did not converge."""
     from .distributed import estimate_logs
     out = Path(args.estimates)
-    prog = _Progress(args, "estimate")
-    try:
-        with _on_cluster(args) as client:
+    with _on_cluster(args) as client:  # before the bar's thread: a local cluster may fork
+        prog = _Progress(args, "estimate")
+        try:
             try:
                 out.mkdir(exist_ok=True)
             except OSError as exc:
@@ -1082,8 +1082,8 @@ def _logs(args, robot) -> int:
             done = estimate_logs(
                 client, robot, args.logs, out, args.unknown, _point_forces(args),
                 Noise(args.length_noise, args.tension_noise), args.dynamic, _walk(args), prog)
-    finally:
-        prog.close()
+        finally:
+            prog.close()
     failed = [s for s in done if s.error]
     for s in failed:
         print(f"tendonsense: {s.error}", file=sys.stderr)
@@ -1383,9 +1383,9 @@ def _sweep(args, robot) -> bool:
     from .readings import sweep_rows, write_csv_atomic
     sets = args.sets_read
     forces = _point_forces(args) + sets.loads
-    prog = _Progress(args, "sweep")
-    try:
-        with _on_cluster(args) as client:
+    with _on_cluster(args) as client:  # before the bar's thread: a local cluster may fork
+        prog = _Progress(args, "sweep")
+        try:
             if client is None:
                 from .tracking import solve_batch
                 out = solve_batch(robot, sets.tensions, forces, sets.values)
@@ -1393,8 +1393,8 @@ def _sweep(args, robot) -> bool:
                 from .distributed import solve_batch
                 out = solve_batch(client, robot, sets.tensions, forces, sets.values,
                                   args.task_size, prog)
-    finally:
-        prog.close()
+        finally:
+            prog.close()
     write_csv_atomic(args.results, *sweep_rows(robot, sets, out))
     n, good = len(sets.rows), int(out.converged.sum())
     if args.json:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterator, Mapping, Sequence
@@ -67,9 +68,9 @@ def cluster(workers: int = 2, scheduler: str | None = None,
     do not run Dask's statistical profiler (:data:`PROFILER`; on a cluster of your own, set
     it false in the workers' Dask config for the same gain) and, when there are no more of
     them than cores, each keeps to a core of its own (:func:`~tendonsense.settings.pin`: XLA's
-    threads then never wait for an idle core to wake). On Linux, from a process that has not
-    loaded JAX, the local workers are forked (they start with Dask already imported); else
-    spawned, Dask's default.
+    threads then never wait for an idle core to wake). On Linux, from a process of one thread
+    that has not loaded JAX, the local workers are forked (they start with Dask already
+    imported) unless Dask's config names a start method other than its default, spawn.
 
     >>> with cluster(2) as client:
     ...     out = solve_batch(client, robot, {"t1": np.full(2000, 2.0)})
@@ -90,9 +91,11 @@ def cluster(workers: int = 2, scheduler: str | None = None,
     # the workers' statistical profiler (a stack sample every 10 ms) slows a task of compiled
     # batches by about a fifth on two cores; the workers take this config
     config = {PROFILER: False}
-    if sys.platform.startswith("linux") and "jax" not in sys.modules:
+    if (sys.platform.startswith("linux") and dask.config.get(START_METHOD) == "spawn"
+            and "jax" not in sys.modules and threading.active_count() == 1):
         # forked from this process, a worker starts with Dask imported (0.08 s against
-        # 0.45 s spawned, two workers on two cores); JAX's threads would not survive a fork
+        # 0.45 s spawned, two workers on two cores); JAX's threads, or any other thread's
+        # locks, would not survive a fork
         config[START_METHOD] = "fork"
     try:
         with dask.config.set(config):

@@ -67,7 +67,8 @@ OFFSET, RELATIVE_OFFSET = 1e-6, 1e-3
 def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
                 tension_columns: tuple[int, ...], exact_every: int, step_tol: float = 1e-8):
     """``init(x0, d0, p0, unknowns, values) -> Carry`` and
-    ``step(carry, d, p, unknowns, values) -> (Carry, Track row)`` of the tracker (pure):
+    ``step(carry, d, p, unknowns, values, skip=False) -> (Carry, Track row)`` of the tracker
+    (pure; ``skip``: the sample is not attempted, 0 iterations, the carry kept):
     quasi-Newton for a square system, Gauss–Newton SQP for least squares (n_z < n_a)."""
     num = structure.numerics
     nq = structure.nq
@@ -103,7 +104,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         return Carry(x0, jnp.zeros((x0.size, x0.size)), jnp.zeros((x0.size, m0.size)), m0,
                      jnp.asarray(False), jnp.asarray(0), vs[1])
 
-    def step(carry: Carry, d, p, unknowns, values):
+    def step(carry: Carry, d, p, unknowns, values, skip=False):
         vs = at(values, p, carry.scaling)
         sc = vs[1]
         floor = vs[0].energy_floor * jnp.sqrt(vs[0].young_modulus)
@@ -122,8 +123,8 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         exact = (carry.count % exact_every == 0) | ~jnp.any(carry.H != 0)
 
         def cond(st):
-            return ((st["status"] == 0) & (st["evals"] < MAX_EVALUATIONS)) | (
-                (st["status"] == 1) & exact & ~st["fresh"])
+            return (((st["status"] == 0) & (st["evals"] < MAX_EVALUATIONS)) | (
+                (st["status"] == 1) & exact & ~st["fresh"])) & ~jnp.asarray(skip)
 
         def body(st):
             dx = -st["H"] @ st["r"]
@@ -211,7 +212,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         return Carry(x0, jnp.zeros((n, n)), jnp.zeros((n, m0.size)), m0, jnp.asarray(False),
                      jnp.asarray(0), at(values, p0)[1])
 
-    def step_ls(carry: Carry, d, p, unknowns, values):
+    def step_ls(carry: Carry, d, p, unknowns, values, skip=False):
         vs = at(values, p, carry.scaling)
         floor = vs[0].energy_floor * jnp.sqrt(vs[0].young_modulus)
         guess = carry.x + jnp.where(carry.ok, carry.dx_dm @ (measurements(d) - carry.measurements),
@@ -242,7 +243,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
 
         def cond(st):
             return (st["status"] == 0) & (st["evals"] < MAX_EVALUATIONS) & (
-                st["jacs"] < 2 * MAX_JACOBIANS)
+                st["jacs"] < 2 * MAX_JACOBIANS) & ~jnp.asarray(skip)
 
         def body(st):
             xt = st["x"] + st["alpha"] * st["dx"]
@@ -289,18 +290,16 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
 
 
 def _until_failure(sample, carry, xs, count, failing):
-    """``lax.scan(sample, carry, xs)``'s outputs over the first ``count`` samples (the rest
-    padding), stopped at a failure after a converged sample (``ys[0]`` a :class:`Track` row;
-    ``failing``: the sample before the first failed): each sample after it, and the padding,
-    is not attempted (its track row not converged, 0 iterations). The caller solves such a
-    failure its own way and scans again after it; failures in a row (no solution over a
-    stretch) are scanned through."""
-    blank = _zeros(jax.eval_shape(sample, carry, jax.tree_util.tree_map(lambda a: a[0], xs))[1])
+    """The outputs of ``lax.scan`` of ``sample(carry, x, skip) -> (carry, ys)`` (``ys[0]`` a
+    :class:`Track` row) over the first ``count`` samples (the rest padding), stopped at a
+    failure after a converged sample (``failing``: the sample before the first failed): each
+    sample after it, and the padding, is skipped (not attempted: its track row not converged,
+    0 iterations, the carry kept). The caller solves such a failure its own way and scans again
+    after it; failures in a row (no solution over a stretch) are scanned through."""
 
     def body(c, xs):
         carry, stop, failed, k = c
-        carry, ys = jax.lax.cond(stop | (k >= count), lambda: (carry, blank),
-                                 lambda: sample(carry, xs))
+        carry, ys = sample(carry, xs, stop | (k >= count))
         fails = ~ys[0].converged
         return (carry, stop | (fails & ~failed), fails, k + 1), ys
 
@@ -332,8 +331,8 @@ def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
         d0, p0 = jax.tree_util.tree_map(lambda a: a[0], (drives, varied))
         carry = init(x0, d0, p0, unknowns, values)
 
-        def one(c, dp):
-            c, row = step(c, *dp, unknowns, values)
+        def one(c, dp, skip=False):
+            c, row = step(c, *dp, unknowns, values, skip)
             return c, (row,)
 
         if until_failure:
@@ -355,7 +354,8 @@ def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
     :data:`~tendonsense.sliding.FIXED_POINT` solves, each from the last (the first with the
     turning of the last sample's shape). ``given`` (N, n_t): states set by the log, NaN where
     the history decides; ``band`` (:class:`~tendonsense.sliding.Band`) the history before the
-    first sample, ``bands`` after each. A failed sample leaves the history as it was."""
+    first sample, ``bands`` after each. A failed or skipped sample leaves the history as it
+    was."""
     init, step = _sample_fns(structure, measured, n_z, tension_columns, exact_every)
     nq = structure.nq
 
@@ -368,7 +368,7 @@ def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
         def kept(failed, before, after):
             return jax.tree_util.tree_map(lambda a, b: jnp.where(failed, a, b), before, after)
 
-        def sample(c, dg):
+        def sample(c, dg, skip):
             carry, band = c
             d, g = dg
             keeps, after_pull = pulled(band, d.tensions, g)
@@ -391,8 +391,9 @@ def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
                         kept(failed, band, after_own), done)
 
             blank = _zeros(jax.eval_shape(solve, carry, d, ones)[1])
+            # skipped: the loop does not run (the carry and the history kept, blank outputs)
             _, new, tr, s, band, _ = jax.lax.while_loop(
-                lambda st: ~st[-1], again, (0, carry, blank, ones, band, jnp.asarray(False)))
+                lambda st: ~st[-1], again, (0, carry, blank, ones, band, jnp.asarray(skip)))
             return (new, band), (tr, s, band)
 
         carry = init(x0, jax.tree_util.tree_map(lambda a: a[0], drives),

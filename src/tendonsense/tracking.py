@@ -37,8 +37,8 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
     The compiled tracker takes them in chunks of ``chunk`` samples (quasi-Newton for square
     problems, Gauss–Newton SQP for least squares); a sample it cannot converge is solved again
     on its own from the straight rod (load continuation, a bounded budget once an earlier
-    sample has converged), and if the next sample failed too, the scan goes on again from
-    that solution; a bad reading (non-finite, negative tension, a tendon pulled in
+    sample has converged) and the scan goes on again after it, from that solution; a bad
+    reading (non-finite, negative tension, a tendon pulled in
     beyond its length) is marked with the reason. ``progress(done, total)`` is called per
     chunk (:func:`series_chunks` hands over each chunk's estimates as it finishes)."""
     n = len(displacements)
