@@ -306,10 +306,6 @@ def _until_failure(sample, carry, xs, count, failing):
     return jax.lax.scan(body, (carry, jnp.asarray(False), jnp.asarray(failing), 0), xs)[1]
 
 
-def _zeros(tree):
-    return jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), tree)
-
-
 @lru_cache(maxsize=CACHE_SIZE)
 def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
             tension_columns: tuple[int, ...], exact_every: int = 1, step_tol: float = 1e-8,
@@ -390,7 +386,8 @@ def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
                 return (k + 1, new, tr, jnp.where(done, s, s_own),
                         kept(failed, band, after_own), done)
 
-            blank = _zeros(jax.eval_shape(solve, carry, d, ones)[1])
+            blank = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype),
+                                           jax.eval_shape(solve, carry, d, ones)[1])
             # skipped: the loop does not run (the carry and the history kept, blank outputs)
             _, new, tr, s, band, _ = jax.lax.while_loop(
                 lambda st: ~st[-1], again, (0, carry, blank, ones, band, jnp.asarray(skip)))
