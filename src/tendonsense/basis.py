@@ -57,19 +57,26 @@ class LegendreBasis:
         X = xp.atleast_1d(xp.asarray(X, dtype=float))
         L = self.length if length is None else length
         s = 2.0 * X / L - 1.0
+        K = max(self.degrees.values(), default=0) + 1
         P = [xp.ones_like(s), s]  # Bonnet: (k+1) P_{k+1} = (2k+1) s P_k − k P_{k−1}
-        for k in range(1, max(self.degrees.values(), default=0)):
+        for k in range(1, K - 1):
             P.append(((2 * k + 1) * s * P[k] - k * P[k - 1]) / (k + 1))
         if derivative:  # P′_{k+1} = P′_{k−1} + (2k + 1) P_k, times ds/dX = 2 / L
             dP = [xp.zeros_like(s), xp.ones_like(s)]
-            for k in range(1, len(P) - 1):
+            for k in range(1, K - 1):
                 dP.append(dP[k - 1] + (2 * k + 1) * P[k])
             P = [p * (2.0 / L) for p in dP]
-        zero = xp.zeros_like(s)
-        rows = {mode: [P[k] for k in range(self.degrees[mode] + 1)] for mode in self.degrees}
-        cols = [[rows[mode][k] if m == mode else zero for m in MODES]
-                for mode, sl in self.blocks() for k in range(sl.stop - sl.start)]
-        return xp.stack([xp.stack(c, axis=-1) for c in cols], axis=-1)
+        # P_k placed in its modes' columns: one product (a small program where X is traced)
+        return xp.einsum("xk,kin->xin", xp.stack(P[:K], axis=-1), self._placement())
+
+    def _placement(self) -> np.ndarray:
+        """(K, 6, n): 1 where coordinate j is the degree-k polynomial of mode i."""
+        M = np.zeros((max(self.degrees.values(), default=0) + 1, 6, self.n))
+        for mode, sl in self.blocks():
+            i = MODES.index(mode)
+            for k in range(sl.stop - sl.start):
+                M[k, i, sl.start + k] = 1.0
+        return M
 
 
 @dataclass(frozen=True)
