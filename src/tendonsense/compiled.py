@@ -25,7 +25,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from .settings import cache_dir, compiler_options
+from .settings import cache_dir, compiler_options, unpinned
 
 
 @lru_cache(maxsize=1)
@@ -108,12 +108,13 @@ def _compile(jitted, args):
     """``jitted`` lowered for ``args`` and compiled with this package's compiler options, or
     without them where this XLA does not have them."""
     lowered = jitted.lower(*args)
-    try:
-        return lowered.compile(compiler_options())
-    except jax.errors.JaxRuntimeError as e:
-        if "No such compile option" not in str(e):
-            raise
-        return lowered.compile()
+    with unpinned():  # XLA's code generation on several threads
+        try:
+            return lowered.compile(compiler_options())
+        except jax.errors.JaxRuntimeError as e:
+            if "No such compile option" not in str(e):
+                raise
+            return lowered.compile()
 
 
 #: every program of this process, for :func:`release`

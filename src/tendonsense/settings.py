@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import os
 import sys
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Iterator
 
 
 def cache_dir() -> Path | None:
@@ -38,19 +40,47 @@ def pin(cpus) -> set[int]:
     core that sits idle can take milliseconds to wake (on a virtual machine, 5–20 ms): a
     live estimator pinned to one core answers every sample in its usual time. Unlike
     ``os.sched_setaffinity(0, …)``, which moves the calling thread only, this moves XLA's
-    threads too. Linux only. Returns the cores."""
+    threads too. A program is compiled on the cores the process had before (:func:`unpinned`).
+    Linux only. Returns the cores."""
+    global _PINNED
     cpus = {int(c) for c in cpus}
     if not hasattr(os, "sched_setaffinity"):
         raise OSError("pinning to cores needs Linux (os.sched_setaffinity)")
     n = os.cpu_count() or 1
     if not cpus or not cpus <= set(range(n)):
         raise ValueError(f"cores {sorted(cpus)}: this machine's cores are 0 to {n - 1}")
+    before = os.sched_getaffinity(0) if _PINNED is None else _PINNED[0]
+    _move_threads(cpus)
+    _PINNED = (before, cpus)
+    return cpus
+
+
+#: (the cores before :func:`pin`, the cores pinned to), or None
+_PINNED: tuple[set[int], set[int]] | None = None
+
+
+def _move_threads(cpus: set[int]) -> None:
     for tid in os.listdir("/proc/self/task"):
         try:
             os.sched_setaffinity(int(tid), cpus)
         except ProcessLookupError:  # a thread that has ended since
             pass
-    return cpus
+
+
+@contextmanager
+def unpinned() -> Iterator[None]:
+    """Inside, a process kept to some cores (:func:`pin`) runs on the cores it had before:
+    XLA compiles a program on several threads (start-up, not the hot path), e.g. while the
+    other workers of a local cluster wait for that program (one core each)."""
+    pinned = _PINNED
+    if pinned is None:
+        yield
+        return
+    _move_threads(pinned[0])
+    try:
+        yield
+    finally:
+        _move_threads(pinned[1])  # threads made inside too
 
 
 #: the variables by which OpenBLAS takes its number of threads, the first set winning
