@@ -215,6 +215,27 @@ def test_programs_compile_with_the_packages_options(tmp_path, monkeypatch, kept)
     np.testing.assert_allclose(out, 2 * np.sin(x), rtol=1e-15)
 
 
+def test_a_program_called_again_skips_its_signature(tmp_path, monkeypatch):
+    """A program called again with arguments of the same kinds runs its last executable
+    without forming their signature; other shapes, dtypes or trees get the executable of
+    their own, each with the right answer."""
+    import jax.numpy as jnp
+    monkeypatch.setenv("TENDONSENSE_CACHE_DIR", str(tmp_path))
+    signatures = []
+    real = compiled._signature
+    monkeypatch.setattr(compiled, "_signature", lambda args: signatures.append(1) or real(args))
+    program = compiled.Program(lambda a, p: jnp.sum(a) * p.get("k", 2.0), "again", "test")
+    x3 = np.arange(3.0)
+    assert float(program(x3, {})) == 6.0 and len(signatures) == 1
+    for _ in range(3):
+        assert float(program(x3 + 1, {})) == 12.0
+    assert len(signatures) == 1
+    for args, want in [((np.arange(4.0), {}), 12.0), ((x3.astype(np.float32), {}), 6.0),
+                       ((x3, {"k": np.float64(3.0)}), 9.0), ((x3, {}), 6.0)]:
+        assert float(program(*args)) == want
+    assert len(signatures) == 5 and len(program.loaded) == 4
+
+
 def test_factorisations_match_lapack():
     """:mod:`tendonsense.linalg`'s LU, Cholesky, solve and determinant (XLA operations only)
     against NumPy's LAPACK, pivoting included."""

@@ -405,24 +405,28 @@ def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
 def stepper(structure: Structure, measured: tuple[int, ...], n_z: int,
             tension_columns: tuple[int, ...], exact_every: int = 1):
     """The tracker one sample at a time: compiled ``init(x0, d0, p0, unknowns, values)`` and
-    ``step(carry, d, p, unknowns, values) -> (carry, row)``, the row packed into one vector
-    (one transfer to the host; :func:`unpack_row`)."""
+    ``step(carry, d, p, unknowns, values) -> (carry, row)``, the row and the turning angles of
+    its shape (a friction history's) packed into one vector (one transfer to the host;
+    :func:`unpack_row`)."""
     init, step = _sample_fns(structure, measured, n_z, tension_columns, exact_every)
 
     def packed(carry, d, p, unknowns, values):
         carry, row = step(carry, d, p, unknowns, values)
-        return carry, jnp.concatenate([jnp.ravel(a).astype(float) for a in row])
+        phi = tendons.turning(structure, values, row.x[:structure.nq])
+        return carry, jnp.concatenate([jnp.ravel(a).astype(float) for a in (*row, phi)])
 
     key = (structure, measured, n_z, tension_columns, exact_every)
     return Program(init, "stepper_init", key), Program(packed, "stepper_step", key)
 
 
-def unpack_row(flat: np.ndarray, n_x: int, n_m: int, n_markers: int, n_t: int) -> Track:
-    """A :class:`Track` row from the packed vector of :func:`stepper` (numpy)."""
+def unpack_row(flat: np.ndarray, n_x: int, n_m: int, n_markers: int, n_t: int
+               ) -> tuple[Track, np.ndarray]:
+    """A :class:`Track` row and the turning angles (n_t,) of its shape from the packed vector
+    of :func:`stepper` (numpy)."""
     sizes = (n_x, 1, 1, 1, n_x * n_m, 3 * n_markers, n_t, 1)
-    x, conv, its, jacs, dx_dm, markers, y, fine = np.split(flat, np.cumsum(sizes)[:-1])
+    x, conv, its, jacs, dx_dm, markers, y, fine, phi = np.split(flat, np.cumsum(sizes))
     return Track(x, bool(conv[0]), int(its[0]), int(jacs[0]), dx_dm.reshape(n_x, n_m),
-                 markers.reshape(n_markers, 3), y, bool(fine[0]))
+                 markers.reshape(n_markers, 3), y, bool(fine[0])), phi
 
 
 def stacked_drives(prob: Problem, tensions: np.ndarray, targets: np.ndarray) -> Drive:

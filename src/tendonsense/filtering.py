@@ -234,7 +234,6 @@ class MotionFilter:
         # where the parts of the step's row [q, z, σ_z, markers, φ, ok] (filter_step) start
         self._row = np.cumsum([0, model.nq, prob.n_z, prob.n_z, 3 * len(prob.robot.markers),
                                model.n_tendons, 1]).tolist()
-        self._call = None  # the step's executable, once loaded
         self.reset()
 
     def prepare(self):
@@ -242,8 +241,8 @@ class MotionFilter:
         prob = self.problem
         n = prob.model.nq + prob.n_z
         state = self._at_rest(0.0, np.zeros(n), np.eye(n), self._drive)
-        self._call = self._step.executable(state, np.float64(1.0), self._drive, self._unknowns,
-                                           self._values, self._tuning, self._markers)
+        self._step.executable(state, np.float64(1.0), self._drive, self._unknowns,
+                              self._values, self._tuning, self._markers)
 
     def reset(self):
         """Forget the state: the next sample starts the filter again, at rest."""
@@ -295,9 +294,7 @@ class MotionFilter:
                               f"{self._t:g} s")
         args = (state, np.float64(time), drive, self._unknowns, values, tuning,
                 self._markers)
-        if self._call is None:
-            self._call = self._step.executable(*args)
-        new, row = self._call(*args)
+        new, row = self._step(*args)
         row = np.asarray(row)
         _, z, sigma, markers, phi, ok = (row[a:b] for a, b in zip(self._row, self._row[1:]))
         if not ok[0]:

@@ -19,8 +19,7 @@ from .forward import INADMISSIBLE
 from .inputs import WALK, Noise, sliding as check_sliding
 from .problem import Problem, band
 from .result import SampleEstimate
-from .sliding import (FIXED_POINT, STATE_TOL, FrictionHistory, band_range, labels,
-                      turning_program)
+from .sliding import FIXED_POINT, STATE_TOL, FrictionHistory, band_range, labels
 from .statics import solve_system
 
 #: evaluations of the solve from the straight rod that a sample the fast path could not
@@ -83,13 +82,13 @@ class OnlineEstimator:
         self._values, self._unknowns = jax.device_put((model.values, prob.unknowns))
         self._carry = None
         self._x = None  # last good [q; z]
+        self._phi = None  # the turning angles of its shape (n_t,)
         self._eval_cost = None  # s per evaluation with a Jacobian, measured
         self._ref = prob  # located forces: the problem at the last estimated X
         self._search_cost = None  # s per search over X, measured
         self._failures = 0  # samples failed in a row
         history = FrictionHistory(model.values.friction)
         self._history = history if history.active and not dynamic and not prob.located else None
-        self._turning = turning_program(model.structure)
         self._corners = {}  # the ends of a stuck tendon's band: signs -> carry
 
     def prepare(self):
@@ -101,14 +100,13 @@ class OnlineEstimator:
             self._filter.prepare()
         self.update({names[j]: 0.0 for j in self.problem.measured}, dict.fromkeys(names, 0.0),
                     0.0)
-        if self._history is not None:
-            self._turning(np.zeros((1, self.problem.model.nq)), self._values)
         self.reset()
 
     def reset(self):
         """Forget the last good sample: the next one starts from the straight rod (with
         ``dynamic``: at rest)."""
-        self._carry, self._x, self._ref, self._failures = None, None, self.problem, 0
+        self._carry, self._x, self._phi = None, None, None
+        self._ref, self._failures = self.problem, 0
         self._corners = {}
         if self._history is not None:
             self._history = FrictionHistory(self._history.mu)
@@ -136,7 +134,6 @@ class OnlineEstimator:
             return self._failed(f"bad value: {exc}")
         if self._history is None:
             return self._sample(start, T, y, displacements, tensions, self._values)
-        nq = prob.model.nq
         before = self._history.copy()
         if self._history.pulled(T, given):  # pulled in: the band does not matter
             est = self._sample(start, T, y, displacements, tensions, self._values)
@@ -144,8 +141,7 @@ class OnlineEstimator:
                 self._history = before
             return est
         if self._x is not None:  # the turning of the last shape
-            self._history.phi = np.asarray(self._turning(self._x[None, :nq], self._values))[0]
-            before.phi = self._history.phi
+            self._history.phi = before.phi = self._phi
         state = self._history.step(T, None, given)
         for _ in range(FIXED_POINT):  # the state at the sample's own shape
             est = self._sample(start, T, y, displacements, tensions, self._signed(state))
@@ -153,7 +149,7 @@ class OnlineEstimator:
                 self._history = before
                 return est
             h = before.copy()
-            new = h.step(T, np.asarray(self._turning(est.x[None, :nq], self._values))[0], given)
+            new = h.step(T, self._phi, given)  # at the turning of its own shape
             self._history = h
             if np.max(np.abs(new - state)) <= STATE_TOL:
                 break
@@ -171,7 +167,8 @@ class OnlineEstimator:
         """The values with every tendon's friction signed by its state."""
         if np.all(state == 1.0):
             return self._values
-        return self._values._replace(friction=jax.device_put(state * self._history.mu))
+        # a NumPy leaf: copied in by the call itself (jax.device_put costs ~0.15 ms)
+        return self._values._replace(friction=state * self._history.mu)
 
     def _band_range(self, est, state, stuck, T, y) -> np.ndarray:
         """(n, 2) the range of the magnitudes over the stuck tendons' band: each end followed
@@ -192,7 +189,7 @@ class OnlineEstimator:
             if carry is None:  # from the sample's own estimate, within the step's budget
                 carry = self._carry
             carry, row = self._step(carry, drive, {}, self._unknowns, values)
-            row = self._unpack(row)
+            row, _ = self._unpack(row)
             if row.converged:
                 self._corners[signs] = carry
                 found.append(row.x[prob.model.nq:prob.model.nq + prob.n_magnitudes])
@@ -218,10 +215,10 @@ class OnlineEstimator:
                 self._eval_cost = self._time_jacobian(drive)
                 self._rescue(drive, displacements, tensions, 1, values)  # load its program
         carry, row = self._step(self._carry, drive, {}, unknowns, values)
-        row = self._unpack(row)
+        row, phi = self._unpack(row)
         outside = self._outside(row.x)
         if row.converged and not outside:
-            self._carry, self._x, self._failures = carry, row.x, 0
+            self._carry, self._x, self._phi, self._failures = carry, row.x, phi, 0
             return self._estimate(row, T, int(row.iterations))
         note = (INADMISSIBLE if not row.admissible else outside if row.converged
                 else "did not converge within the work budget")
@@ -261,10 +258,10 @@ class OnlineEstimator:
             self._carry = carry
             self._eval_cost = self._time_jacobian(drive)
         carry, row2 = self._step(carry, drive, {}, unknowns, values)
-        row2 = self._unpack(row2)
+        row2, phi = self._unpack(row2)
         if not row2.converged or self._outside(row2.x):
             return self._failed(INADMISSIBLE if not row2.admissible else note, row2)
-        self._carry, self._x, self._failures = carry, row2.x, 0
+        self._carry, self._x, self._phi, self._failures = carry, row2.x, phi, 0
         return self._estimate(row2, T, iterations + evaluations + int(row2.iterations))
 
     def _outside(self, x) -> str:
@@ -302,11 +299,11 @@ class OnlineEstimator:
                 jax.block_until_ready(self._init(np.asarray(self._carry.x), *args))
                 best.append(_clock() - t0)
             else:
-                row = self._unpack(self._step(self._carry, *args)[1])
+                row, _ = self._unpack(self._step(self._carry, *args)[1])
                 best.append((_clock() - t0) / max(1, row.jacobians))
         return min(best)
 
-    def _unpack(self, flat) -> Track:
+    def _unpack(self, flat) -> tuple[Track, np.ndarray]:
         prob = self.problem
         return unpack_row(np.asarray(flat), prob.model.nq + prob.n_z,
                           len(prob.measured) + len(self._tcols), len(prob.robot.markers),
