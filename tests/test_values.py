@@ -236,6 +236,23 @@ def test_a_program_called_again_skips_its_signature(tmp_path, monkeypatch):
     assert len(signatures) == 5 and len(program.loaded) == 4
 
 
+def test_programs_compile_unpinned(monkeypatch):
+    """Every compilation runs inside :func:`settings.unpinned` (a process kept to a core
+    compiles on the cores it had)."""
+    from contextlib import contextmanager
+    entered = []
+
+    @contextmanager
+    def recording():
+        entered.append(True)
+        yield
+
+    monkeypatch.setattr(compiled, "unpinned", recording)
+    monkeypatch.setenv("TENDONSENSE_CACHE_DIR", "")
+    assert float(compiled.Program(lambda a: a.sum() + 1, "unpinned", "test")(np.ones(2))) == 3
+    assert entered == [True]
+
+
 def test_factorisations_match_lapack():
     """:mod:`tendonsense.linalg`'s LU, Cholesky, solve and determinant (XLA operations only)
     against NumPy's LAPACK, pivoting included."""

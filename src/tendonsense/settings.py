@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -49,14 +50,16 @@ def pin(cpus) -> set[int]:
     n = os.cpu_count() or 1
     if not cpus or not cpus <= set(range(n)):
         raise ValueError(f"cores {sorted(cpus)}: this machine's cores are 0 to {n - 1}")
-    before = os.sched_getaffinity(0) if _PINNED is None else _PINNED[0]
-    _move_threads(cpus)
-    _PINNED = (before, cpus)
+    with _PIN_LOCK:
+        before = os.sched_getaffinity(0) if _PINNED is None else _PINNED[0]
+        _move_threads(cpus)
+        _PINNED = (before, cpus)
     return cpus
 
 
-#: (the cores before :func:`pin`, the cores pinned to), or None
+#: (the cores before :func:`pin`, the cores pinned to), or None; changed under the lock
 _PINNED: tuple[set[int], set[int]] | None = None
+_PIN_LOCK = threading.RLock()
 
 
 def _move_threads(cpus: set[int]) -> None:
@@ -69,18 +72,22 @@ def _move_threads(cpus: set[int]) -> None:
 
 @contextmanager
 def unpinned() -> Iterator[None]:
-    """Inside, a process kept to some cores (:func:`pin`) runs on the cores it had before:
-    XLA compiles a program on several threads (start-up, not the hot path), e.g. while the
-    other workers of a local cluster wait for that program (one core each)."""
-    pinned = _PINNED
-    if pinned is None:
-        yield
-        return
-    _move_threads(pinned[0])
-    try:
-        yield
-    finally:
-        _move_threads(pinned[1])  # threads made inside too
+    """Inside, a process kept to some cores (:func:`pin`) runs on the cores it had before,
+    every thread of it: XLA compiles a program on several threads (start-up, not the hot
+    path), e.g. while the other workers of a local cluster wait for that program (one core
+    each). Where those cores are no longer the process's to take, it stays pinned."""
+    with _PIN_LOCK:
+        if _PINNED is None:
+            yield
+            return
+        try:
+            _move_threads(_PINNED[0])
+        except OSError:  # e.g. a core taken away since (EINVAL): compile where pinned
+            pass
+        try:
+            yield
+        finally:
+            _move_threads(_PINNED[1])  # threads made inside too
 
 
 #: the variables by which OpenBLAS takes its number of threads, the first set winning
