@@ -7,16 +7,10 @@ import re
 import griffe
 
 ROLE = re.compile(r":(?:class|func|meth|mod|attr|data|exc|obj):`~?([^`]+)`")
-#: the source cites the developers' contract by section; the reader gets the manual's words
-SPEC = [(r"\s*\(SPEC §\d\)", ""), (r"of SPEC §\d", "described in Conventions and file formats"),
-        (r"the SPEC §\d format", "the robot-file format"), (r"The SPEC §\d keys", "The JSON keys"),
-        (r"SPEC §\d", "Conventions and file formats")]
 
 
 def to_markdown(text: str) -> str:
     text = ROLE.sub(lambda m: f"`{m.group(1)}`", text)
-    for pattern, words in SPEC:
-        text = re.sub(pattern, words, text)
     text = re.sub(r"(\S)::$", r"\1:", text, flags=re.M)
     out, block = [], None
     for line in text.split("\n"):

@@ -156,6 +156,8 @@ def test_a_header_only_log_is_an_error(tmp_path):
      "point force 1: X = -0.1 m is outside the rod"),
     (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--tension", "t1=2", "--unknown",
       "?,0,0,-1"), 1, "need at least 2 tendons"),
+    (("estimate", PROTOTYPE, "--readings", ROOT / "examples" / "tutorial" / "readings.csv",
+      "--unknown", "0.25,0,0,-1", "--json"), 2, "--json: the rows go to standard output"),
 ])
 def test_a_slip_is_refused_in_one_line_before_jax_starts(tmp_path, args, status, words):
     rc, err, jax_loaded = refused_before_jax(*args)

@@ -47,6 +47,13 @@ def test_fits_back_exactly_without_noise(truth):
     assert fit.marker_rmse < 1e-6 < fit.initial_marker_rmse
 
 
+def test_a_fit_not_converged_says_why(truth):
+    fit = identify(start(truth), snapshots(truth), ALL, max_iterations=2)
+    assert not fit.converged and fit.iterations == 2
+    assert fit.note.startswith("the iteration limit (2) reached with a Gauss–Newton step")
+    assert fit.to_json()["note"] == fit.note
+
+
 def test_fits_within_3_percent_with_half_millimetre_noise(truth):
     fit = identify(start(truth), snapshots(truth, noise=5e-4), ALL)
     assert fit.converged

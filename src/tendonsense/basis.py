@@ -1,14 +1,16 @@
 """Strain bases ``Φξ(X)`` of eq. 5, ``ξ(X) = Φξ(X) q + ξ*``.
 
-A basis is any object with a number of coordinates ``n`` and a call ``basis(X) -> (len(X), 6, n)``
-(numpy, evaluated once at fixed points when a model is discretised). :class:`LegendreBasis`
-is the paper's; other families plug in behind the same :class:`StrainBasis` protocol.
+Two families, each a frozen description with a number of coordinates ``n`` and a call
+``basis(X, <length or element bounds>, xp, side, derivative) -> (len(X), 6, n)`` (NumPy, or
+traced with ``xp=jax.numpy`` at run-time points and dimensions): :class:`LegendreBasis`, the
+paper's one polynomial block per mode over the rod, and :class:`ElementsBasis`, one block per
+element between given cuts. :meth:`tendonsense.model.Structure.basis` picks the robot's.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping, Protocol
+from typing import Mapping
 
 import numpy as np
 
@@ -17,12 +19,6 @@ MODES = ("torsion", "bending_y", "bending_z", "elongation", "shear_y", "shear_z"
 
 #: the paper's default basis: 1 + 5 + 5 + 4 = 15 coordinates
 DEFAULT_DEGREES = {"torsion": 0, "bending_y": 4, "bending_z": 4, "elongation": 3}
-
-
-class StrainBasis(Protocol):
-    n: int
-
-    def __call__(self, X: np.ndarray) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)

@@ -659,6 +659,9 @@ def _check_estimate(args, robot, tensions, displacements):
             raise UsageError("tendonsense estimate: --view streams the rows to standard "
                              "output; leave out -o (or redirect standard output)")
         _writable(args.estimates, "-o/--estimates")
+    elif args.json:
+        raise UsageError("tendonsense estimate: --json: the rows go to standard output as "
+                         "CSV; give -o OUT.csv for the rows in a file and a JSON summary")
     if args.readings != "-":
         from .readings import has_time, read_readings
         args.log = read_readings(args.readings, robot)
@@ -830,7 +833,7 @@ def _analysis_run(args):
     except OSError as exc:
         raise ValueError(f"-o/--out-dir {args.out_dir}: cannot make the folder "
                          f"({exc.strerror})") from None
-    _writable(out / "summary.json", "-o/--out-dir")
+    _writable(out / f"{args.command}_summary.json", "-o/--out-dir")
     from . import analyses, plotting
     from .readings import write_csv_atomic, write_text_atomic
     prog = _Progress(args, args.command)
@@ -1298,7 +1301,7 @@ def _identify(args, robot) -> bool:
     if args.json:
         print(json.dumps(fit.to_json()))
         return fit.converged
-    print(f"identification ({robot.name}, {source}): "
+    print(f"identification of {robot.name} from {source}: "
           f"{'converged' if fit.converged else 'NOT CONVERGED'} in {fit.iterations} "
           f"{'simulations' if args.readings else 'iterations'}"
           + (f": {fit.note}" if fit.note else ""))

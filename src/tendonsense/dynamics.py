@@ -1,4 +1,4 @@
-"""Rod dynamics ``M(q) q̈ + C(q, q̇) q̇ + D q̇ + K q = B(q) T + F(q)`` (SPEC §5) in GVS form, and
+"""Rod dynamics ``M(q) q̈ + C(q, q̇) q̇ + D q̇ + K q = B(q) T + F(q)`` in GVS form, and
 its time integration.
 
 The inertial force ``M(q) q̈ + C(q, q̇) q̇ = ∫ Jᵀ (M_ρ η̇ − ad_ηᵀ M_ρ η) dX`` with the screw
@@ -33,6 +33,7 @@ from .compiled import Program
 from .kinematics import configuration, poses, positions
 from .lie import ad_apply, skew
 from .model import Structure, Values, points_at
+from .rod import section
 from .sliding import Band, play
 from .statics import CACHE_SIZE, Drive, Unknowns, admissible, scaling, terms
 from .tendons import length_changes, turning
@@ -59,7 +60,7 @@ def _inertia_points(structure: Structure, values: Values):
     X = jnp.stack([values.nodes[:-1] + (0.5 - _Z) * h, values.nodes[:-1] + (0.5 + _Z) * h],
                   axis=1).ravel()
     r = values.radius_z.ravel()
-    area, inertia = np.pi * r**2, np.pi * r**4 / 4.0
+    area, inertia = section(r)
     weight = values.density * jnp.repeat(h / 2, 2)
     M = jax.vmap(jnp.diag)(weight[:, None] * jnp.stack(
         [2 * inertia, inertia, inertia, area, area, area], 1))

@@ -117,7 +117,7 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
     ``displacements`` (m) and ``tensions`` (N), by tendon name (eq. 17).
 
     ``sliding`` ({tendon: 'in' | 'out' | 'stuck'}, default in) is the direction each tendon
-    slides, which sets the sense of its friction (SPEC §5). A stuck tendon's tension profile
+    slides, which sets the sense of its friction. A stuck tendon's tension profile
     is anywhere between the two: the result is the estimate at the middle of that band
     (no friction in it) with ``extra['magnitude_range']`` ``[[low, high], …]``, the estimates at
     its ends (±inf on the side of an end without an equilibrium, said in ``extra['note']``).

@@ -1,4 +1,4 @@
-"""Estimation of a rod in motion: an extended Kalman filter on the damped model (SPEC §5).
+"""Estimation of a rod in motion: an extended Kalman filter on the damped model.
 
 The quasi-static estimate (eq. 17) takes each sample at rest. A moving Kelvin–Voigt rod lags
 its load, ``D q̇ = B(q) T + F(q, z) − K q`` (:mod:`tendonsense.dynamics` without inertia), and

@@ -85,7 +85,7 @@ def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
     """Forward statics: the equilibrium shape under tendon ``tensions`` (N, by tendon name;
     missing tendons are slack), gravity and known global ``point_forces`` [(X, f), ...];
     ``sliding`` ({tendon: 'in' | 'out'}, default in) is the direction each tendon slides,
-    which sets the sense of its friction (SPEC §5)."""
+    which sets the sense of its friction."""
     model = model_for(robot)
     drive = _statics_drive(robot, tensions, point_forces)
     res = solve_system(model.structure, sliding_values(robot, model.values, sliding), (),

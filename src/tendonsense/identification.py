@@ -247,14 +247,15 @@ class _Setup:
 
     def fit(self, theta, subset, qs, max_iterations, progress=None):
         """Levenberg–Marquardt from ``theta`` (log ratios): (θ, parts, J, qs, converged,
-        iterations)."""
+        iterations, why not converged)."""
         first = self.evaluate(theta, subset, qs)
         if first is None:
             raise SnapshotError("a snapshot's equilibrium did not converge with the starting "
                                 "parameters")
         parts, J, qs = first
         r = self.residual(parts)
-        damping, converged, it = 1e-3, False, 0
+        damping, converged, it, gn = 1e-3, False, 0, np.inf
+        note = f"the iteration limit ({max_iterations}) reached"
         for it in range(1, max_iterations + 1):
             g, H = J.T @ r, J.T @ J
             # the undamped Gauss–Newton step, relative change of θ: converged below 1e-6, or
@@ -277,8 +278,13 @@ class _Setup:
                 progress(it, max_iterations)
             if not improved:
                 converged = gn <= 1e-5
+                note = "no Levenberg–Marquardt step lowers the misfit"
                 break
-        return theta, parts, J, qs, bool(converged), it
+        if converged:
+            note = ""
+        elif np.isfinite(gn):
+            note += f" with a Gauss–Newton step of {gn:.1e} in log θ (converged below 1e-6)"
+        return theta, parts, J, qs, bool(converged), it, note
 
 
 def _sq(r):
@@ -352,8 +358,8 @@ def identify(robot: Robot, snapshots: Sequence[Snapshot],
                             "parameters")
     _observable(first[1], params, _what(snapshots))
     initial = _errors(first[0])
-    theta, parts, J, qs, converged, it = setup.fit(np.zeros(len(params)), everything,
-                                                   first[2], max_iterations, progress)
+    theta, parts, J, qs, converged, it, note = setup.fit(
+        np.zeros(len(params)), everything, first[2], max_iterations, progress)
     _, fitted = setup.values(theta)
     fitted = {k: float(v) for k, v in fitted.items()}
     # (JᵀJ)⁻¹ of the noise-weighted residuals: the covariance of log θ (eq. 19 linearised)
@@ -369,7 +375,7 @@ def identify(robot: Robot, snapshots: Sequence[Snapshot],
                                       density=fitted.get("density"),
                                       friction={**shared, **mu} or None)
     return Identified(fitted, *_errors(parts), *initial, converged, it, new_robot, folds,
-                      per_snapshot, sigma)
+                      per_snapshot, sigma, note)
 
 
 def _cross_validate(setup: _Setup, snapshots, theta, qs, fitted_errors, max_iterations,
@@ -384,7 +390,7 @@ def _cross_validate(setup: _Setup, snapshots, theta, qs, fitted_errors, max_iter
         fitted = _Fold(None, None, None, False, "")
         try:
             _check(setup.model.robot, [snapshots[i] for i in rest], setup.params)
-            t, _, J, _, ok, _ = setup.fit(theta, rest, dict(qs), max_iterations)
+            t, _, J, _, ok, _, _ = setup.fit(theta, rest, dict(qs), max_iterations)
             _observable(J, setup.params, _what([snapshots[i] for i in rest]))
             predicted = setup.evaluate(t, [k], qs)
             if predicted is None:

@@ -118,22 +118,7 @@ def readings(robot: Robot, displacements_: Mapping[str, float],
     return tensions(robot, tensions_), y
 
 
-def reading_error(robot: Robot, T: np.ndarray, y: np.ndarray, measured: Sequence[int],
-                  rest: np.ndarray | None = None) -> str | None:
-    """Why vectors of readings (tensions ``T``, length changes ``y`` with the ``measured``
-    ones checked) break the rules, or None (for readings already parsed into numbers)."""
-    rest = rest_lengths(robot) if rest is None else rest
-    names = robot.tendon_names
-    for j, name in enumerate(names):
-        if error := tension_error(name, float(T[j])):
-            return error
-    for j in measured:
-        if error := displacement_error(names[j], float(y[j]), float(rest[j])):
-            return error
-    return None
-
-
-#: the directions a tendon may slide through its guides (SPEC §5)
+#: the directions a tendon may slide through its guides
 SLIDING = ("in", "out", "stuck")
 #: a friction state this close to ±1 is sliding (in or out), not stuck
 EDGE = 1e-9

@@ -24,12 +24,6 @@ def skew(w):
                       jnp.stack([-y, x, o], -1)], -2)
 
 
-def hat(xi):
-    """se(3) twist ``[w; v]`` -> 4x4 matrix."""
-    top = jnp.concatenate([skew(xi[:3]), xi[3:, None]], axis=1)
-    return jnp.concatenate([top, jnp.zeros((1, 4), xi.dtype)], axis=0)
-
-
 def vee(m):
     """4x4 se(3) matrix -> twist ``[w; v]``."""
     return jnp.array([m[2, 1], m[0, 2], m[1, 0], m[0, 3], m[1, 3], m[2, 3]])
@@ -213,7 +207,8 @@ def hat_times(sigma, g):
 
 
 def safe_norm(x):
-    """Euclidean norm whose derivative at 0 is taken as 0 instead of NaN."""
-    s = jnp.dot(x, x)
+    """Euclidean norms over the last axis, whose derivative at 0 is taken as 0 instead of
+    NaN."""
+    s = jnp.sum(x * x, axis=-1)
     pos = s > 0
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, s, 1.0)), 0.0)

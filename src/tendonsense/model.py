@@ -21,6 +21,7 @@ import numpy as np
 from .basis import ElementsBasis, LegendreBasis
 from .lie import skew
 from .robot import Numerics, Robot
+from .rod import section
 
 _Z = np.sqrt(3.0) / 6.0  # Zannah / two-point Gauss abscissae at 1/2 -+ sqrt(3)/6
 
@@ -123,8 +124,9 @@ class Values(NamedTuple):
         return self.K_axial + self.K_shear / (2.0 * (1.0 + self.poisson_ratio))
 
     def damping_matrix(self):
-        """``D = ∫ Φᵀ Υ Φ dX``, ``Υ = η diag(Jx, 3Jy, 3Jz, 3A, A, A)`` (SPEC §5): the viscous
-        analogue of K for an incompressible material, so that ``D = 3η/E · K`` at ν = 0.5."""
+        """``D = ∫ Φᵀ Υ Φ dX``, ``Υ = η diag(Jx, 3Jy, 3Jz, 3A, A, A)``: the viscous analogue of
+        K for an incompressible material, so that ``D = 3η/E · K`` at ν = 0.5 (the manual's
+        *The robot in motion*)."""
         return self.damping * (3.0 * self.K_axial + self.K_shear)
 
 
@@ -173,7 +175,7 @@ class Model:
         W = (0.5 * h[:, None] * wg).ravel()
         Phi = basis(X)
         r = rod.radius(X)
-        A, I = np.pi * r**2, np.pi * r**4 / 4.0
+        A, I = section(r)
         zero = 0 * A
         K_axial = np.einsum("k,kai,ka,kaj->ij", W, Phi, np.stack([zero, I, I, A, zero, zero], 1), Phi)
         K_shear = np.einsum("k,kai,ka,kaj->ij", W, Phi, np.stack([2 * I, zero, zero, zero, A, A], 1),

@@ -38,7 +38,7 @@ class OnlineEstimator:
 
     Every call ends within a work budget: at most ``MAX_EVALUATIONS`` residual evaluations
     and ``MAX_JACOBIANS`` exact Jacobians of the warm-started quasi-Newton step
-    (:mod:`tendonsense.tracking`), then, if that fails and time is left of ``time_limit``
+    (:mod:`tendonsense.fastpath`), then, if that fails and time is left of ``time_limit``
     (s), one solve from the straight rod with as many evaluations as fit in the time left (or
     a fixed ``rescue_budget`` of evaluations, for results that must not depend on the clock).
     The first sample, with no earlier state to start from, may take a full solve with load

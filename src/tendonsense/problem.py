@@ -81,11 +81,6 @@ class Problem:
                 raise ValueError(f"displacement {names[j]}: missing: the tendon is measured")
         return inputs.readings(self.robot, displacements, tensions, self.rest_lengths)
 
-    def reading_error(self, T: np.ndarray, y: np.ndarray) -> str | None:
-        """Why readings (tensions T, length changes y; per tendon) break the rules of
-        :mod:`tendonsense.inputs`, or None."""
-        return inputs.reading_error(self.robot, T, y, self.measured, self.rest_lengths)
-
     def drive(self, tensions, targets) -> Drive:
         return Drive(np.asarray(tensions, float), self.known_forces, self.load_X, self.gravity,
                      np.asarray(targets, float))

@@ -30,12 +30,10 @@ class Rod:
         return np.array([x for x, _ in self.radius_knots[1:-1]])
 
     def area(self, X) -> np.ndarray:
-        return np.pi * self.radius(X) ** 2
+        return section(self.radius(X))[0]
 
-    def section_stiffness(self, X) -> np.ndarray:
-        """Diagonal of ``Σ(X) = diag(G Jx, E Jy, E Jz, E A, G A, G A)`` divided by E, shape (n, 6)."""
-        r = self.radius(np.atleast_1d(X))
-        A = np.pi * r**2
-        I = np.pi * r**4 / 4.0  # Jy = Jz; Jx = 2 I (polar)
-        g = 1.0 / (2.0 * (1.0 + self.poisson_ratio))
-        return np.stack([g * 2 * I, I, I, A, g * A, g * A], axis=-1)
+
+def section(r):
+    """Area ``A = π r²`` and second moment of area ``I = π r⁴ / 4`` of a circular section of
+    radius ``r`` (NumPy or JAX): ``Σ = diag(2 G I, E I, E I, E A, G A, G A)`` (eq. 8a)."""
+    return np.pi * r**2, np.pi * r**4 / 4.0

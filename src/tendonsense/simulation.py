@@ -1,7 +1,7 @@
-"""Forward dynamics over time (SPEC §5): tendon tensions and known forces over time → the
-rod's motion and the readings a robot would log (``time``, ``tension_<name>``,
-``displacement_<name>``, ``marker_<name>_x/_y/_z``), with read-out noise when asked, so that an
-experiment can be rehearsed before it is run (:func:`simulate`)."""
+"""Forward dynamics over time (the manual's *The robot in motion*): tendon tensions and
+known forces over time → the rod's motion and the readings a robot would log (``time``,
+``tension_<name>``, ``displacement_<name>``, ``marker_<name>_x/_y/_z``), with read-out noise
+when asked, so that an experiment can be rehearsed before it is run (:func:`simulate`)."""
 
 from __future__ import annotations
 
@@ -49,9 +49,10 @@ class Simulation:
 
     def readings(self, noise_length: float = 0.0, noise_tension: float = 0.0,
                  seed: int | None = None) -> dict[str, np.ndarray]:
-        """The readings log's columns (SPEC §4): Gaussian read-out noise of ``noise_length``
-        (m) on the length changes and ``noise_tension`` (relative) on the tensions, none on the
-        markers; a noisy tension below 0 reads 0 (a sensor of a slack tendon)."""
+        """The readings log's columns (the manual's *Conventions and file formats*): Gaussian
+        read-out noise of ``noise_length`` (m) on the length changes and ``noise_tension``
+        (relative) on the tensions, none on the markers; a noisy tension below 0 reads 0 (a
+        sensor of a slack tendon)."""
         rng = np.random.default_rng(seed)
         cols = {"time": self.time}
         for n, T in self.tensions.items():

@@ -12,6 +12,7 @@ import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
 from .kinematics import configuration, wrench
+from .lie import safe_norm
 from .model import Structure, TendonGroup, Values
 
 
@@ -83,7 +84,7 @@ def _rate(w, dw, omega):
     along = _dot(u, dw)[..., None]
     across = dw - u * along  # (I − ŵŵᵀ) w′
     v = jnp.cross(omega, u) + across / s
-    rate = _norm(v)
+    rate = safe_norm(v)
     n = v / jnp.where(rate > 0, rate, 1.0)[..., None]
     c = jnp.cross(n, omega) - (along * n + _dot(n, u)[..., None] * dw) / s
     g_w = (c - u * _dot(u, c)[..., None] - _dot(n, across)[..., None] * u / s) / s
@@ -98,7 +99,7 @@ def _unit_angle(a, b):
     ua, ub = a / la, b / lb
     normal = jnp.cross(ua, ub)  # exactly 0 for equal directions
     to_b, to_a = jnp.cross(normal, ua), jnp.cross(ub, normal)  # ⊥ a toward b, ⊥ b toward a
-    sin = _norm(normal)[..., None]
+    sin = safe_norm(normal)[..., None]
     sin = jnp.where(sin > 0, sin, jnp.inf)
     return _angle(ua, ub), -to_b / (la * sin), -to_a / (lb * sin)
 
@@ -218,15 +219,8 @@ def actuation(structure: Structure, values: Values, q, friction):
 def _angle(a, b):
     """Angle between unit vectors (last axis), ``2 atan2(|a − b|, |a + b|)``; its derivative at a
     straight pass (angle 0, where the Capstan law has a kink) is taken as 0."""
-    return 2.0 * jnp.arctan2(_norm(a - b), _norm(a + b))
+    return 2.0 * jnp.arctan2(safe_norm(a - b), safe_norm(a + b))
 
 
 def _dot(a, b):
     return jnp.sum(a * b, axis=-1)
-
-
-def _norm(x):
-    """Euclidean norms over the last axis, with derivative 0 at 0 (:func:`~.lie.safe_norm`)."""
-    s = jnp.sum(x * x, axis=-1)
-    pos = s > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, s, 1.0)), 0.0)
