@@ -5,9 +5,11 @@ Writes examples/tutorial/snapshots.csv (static poses of the paper's prototype wi
 tip weights and tensions, marker positions with 0.5 mm noise),
 examples/tutorial/snapshots_tendons.csv (13 such poses read by the tendons alone, 0.1 mm
 noise) and
-examples/tutorial/readings.csv (a 6 s log at 50 Hz: tendon t1 pulled while a tip weight of
-0, 10 and 20 gF hangs on the tip; 0.1 mm and 0.8 % sensor noise). The "true" robot is
-examples/paper_prototype.toml.
+examples/tutorial/readings.csv (a 6 s log at 50 Hz: tendon t1 pulled from 1 N to 3 N and
+released again while a tip weight of 0, 10 and 20 gF hangs on the tip; 0.1 mm and 0.8 %
+sensor noise). The "true" robot is examples/paper_prototype.toml; along the log, t1's
+friction follows its tension history as a real tendon's does (pulled in while the tension
+rises, stuck when it turns, paid out once it has fallen through the band 2μφ in ln T).
 """
 
 import csv
@@ -15,8 +17,8 @@ import csv
 import numpy as np
 
 from tendonsense import load_robot
-from tendonsense.forward import solve
-from tendonsense.tracking import solve_batch
+from tendonsense.forward import model_for, solve
+from tendonsense.sliding import FIXED_POINT, STATE_TOL, FrictionHistory, turning_program
 
 GF = 9.80665e-3
 robot = load_robot("examples/paper_prototype.toml")
@@ -46,9 +48,35 @@ n, rate = 300, 50.0
 time = np.arange(n) / rate
 T1 = 2.0 - np.cos(2 * np.pi * time / 6.0)
 grams = np.where(time < 2, 0.0, np.where(time < 4, 10.0, 20.0))
-out = solve_batch(robot, {"t1": T1}, [(0.25, np.stack([0 * T1, 0 * T1, -grams * GF], 1))])
-assert out.converged.all()
-y = out.displacements["t1"] + rng.normal(0, 1e-4, n)
+
+def released(T, load):
+    """The length change of t1 at each tension of ``T`` under ``load`` (N, 3), its friction
+    state following the tension history: at each reading the state at the sample's own shape
+    (its turning angles φ), settled by a few solves."""
+    model = model_for(robot)
+    turning = turning_program(model.structure)
+    mu = np.asarray(model.values.friction, float)
+    history, phi, q, out = FrictionHistory(mu), np.zeros_like(mu), None, []
+    for T_k, f in zip(T, load):
+        tensions = np.array([T_k, 0.0, 0.0])
+        before, state = history, None
+        for _ in range(FIXED_POINT):
+            history = before.copy()
+            history.phi = phi
+            new = history.step(tensions, None if state is None else phi_k)
+            if state is not None and np.max(np.abs(new - state)) <= STATE_TOL:
+                break
+            state = new
+            signed = robot.with_parameters(friction={"t1": state[0] * mu[0]})
+            res = solve(signed, {"t1": T_k}, [(0.25, f)], q0=q)
+            assert res.converged
+            phi_k = np.asarray(turning(res.q[None], model_for(signed).values))[0]
+        q, phi = res.q, phi_k
+        out.append(res.displacements["t1"])
+    return np.array(out)
+
+
+y = released(T1, np.stack([0 * T1, 0 * T1, -grams * GF], 1)) + rng.normal(0, 1e-4, n)
 T = T1 * (1 + rng.normal(0, 0.025 / 3, n))
 with open("examples/tutorial/readings.csv", "w", newline="") as fh:
     w = csv.writer(fh)

@@ -30,9 +30,11 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
                     tensions: Sequence[Mapping[str, float]], noise: Noise = Noise(),
                     chunk: int = 100, progress=None,
                     values: Mapping[str, object] | None = None) -> list[SampleEstimate]:
-    """Estimate a time series of readings, each sample warm-started from the previous one;
-    ``values`` ({name: (N,)}, as for :func:`solve_batch`) gives each sample its own E, ν, ρ
-    or μ (e.g. a Monte Carlo over friction).
+    """Estimate a time series of readings, each sample warm-started from the previous one,
+    every tendon pulled in (eq. 10 as written; :func:`tendonsense.logs.estimate_readings`
+    follows each tendon's friction history); ``values`` ({name: (N,)}, as for
+    :func:`solve_batch`) gives each sample its own E, ν, ρ or μ (e.g. a Monte Carlo over
+    friction).
 
     The compiled tracker takes them in chunks of ``chunk`` samples (quasi-Newton for square
     problems, Gauss–Newton SQP for least squares); a sample it cannot converge is solved again
