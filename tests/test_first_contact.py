@@ -4,6 +4,7 @@ consistent command line."""
 
 import csv
 import json
+import os
 import subprocess
 import sys
 
@@ -120,6 +121,35 @@ def test_a_log_row_breaking_a_rule_is_marked_and_the_rest_estimated(prototype, t
     assert rows[6]["note"].endswith("column displacement_t1: 'nan' is not a finite number")
 
 
+def test_output_files_are_readable_as_the_users_own(prototype, tmp_path):
+    """Outputs are written atomically beside their place, with the permissions of a file the
+    user makes (0o666 less the umask), not a temporary file's private ones."""
+    from tendonsense.plotting import shape
+    from tendonsense.readings import write_bytes_atomic, write_text_atomic
+    old = os.umask(0o022)
+    try:
+        write_text_atomic(tmp_path / "rows.csv", "a,b\n")
+        write_bytes_atomic(tmp_path / "raw.bin", b"\0")
+        shape(solve(prototype, {"t1": 1.0}), tmp_path / "shape.png", prototype)
+    finally:
+        os.umask(old)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["raw.bin", "rows.csv", "shape.png"]
+    assert all(p.stat().st_mode & 0o777 == 0o644 for p in tmp_path.iterdir())
+
+
+def test_a_live_log_into_a_file(tmp_path):
+    """``--readings - -o FILE``: the rows go into FILE (atomically, at the end), standard
+    output says what was written."""
+    rows = (ROOT / "examples" / "tutorial" / "readings.csv").read_text().splitlines()[:6]
+    out = tmp_path / "live.csv"
+    p = cli("estimate", PROTOTYPE, "--readings", "-", "--unknown", "0.25,0,0,-1", "-o", out,
+            stdin="\n".join(rows) + "\n")
+    assert p.returncode == 0, p.stderr
+    assert p.stdout == f"estimated 5 samples: 5 converged; wrote {out}\n"
+    written = list(csv.DictReader(open(out)))
+    assert [r["row"] for r in written] == ["1", "2", "3", "4", "5"]
+
+
 def test_a_header_only_log_is_an_error(tmp_path):
     log = tmp_path / "log.csv"
     log.write_text("time,tension_t1,tension_t2,tension_t3,displacement_t1\n")
@@ -158,6 +188,17 @@ def test_a_header_only_log_is_an_error(tmp_path):
       "?,0,0,-1"), 1, "need at least 2 tendons"),
     (("estimate", PROTOTYPE, "--readings", ROOT / "examples" / "tutorial" / "readings.csv",
       "--unknown", "0.25,0,0,-1", "--json"), 2, "--json: the rows go to standard output"),
+    (("estimate", PROTOTYPE, "--readings", ROOT / "examples" / "tutorial" / "readings.csv",
+      "--readings", ROOT / "examples" / "tutorial" / "readings.csv", "--unknown",
+      "0.25,0,0,-1"), 2, "--readings given twice"),
+    (("solve", PROTOTYPE, "--tension", "t1=2", "--plot", "a.png", "--plot", "b.png"), 2,
+     "--plot given twice"),
+    (("estimate", PROTOTYPE, "--readings", ROOT / "examples" / "tutorial" / "readings.csv",
+      ROOT / "examples" / "sweep_sets.csv", "--unknown", "0.25,0,0,-1", "-o", "e.csv"), 2,
+     "several logs write one output each into a folder: -o e.csv/ makes it"),
+    (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--displacement", "t2=-0.004",
+      "--tension", "t1=2", "--tension", "t2=1", "--unknown", "0.2,0,0,-1", "--unknown",
+      "0.2,0,0,-2"), 1, "unknowns 1 and 2: one force"),
 ])
 def test_a_slip_is_refused_in_one_line_before_jax_starts(tmp_path, args, status, words):
     rc, err, jax_loaded = refused_before_jax(*args)

@@ -54,9 +54,26 @@ class UsageError(Exception):
     pass
 
 
+class _Once(argparse._StoreAction):
+    """An option with a value that may be given once (a second one is a usage error, never
+    silently the last)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        given = namespace.__dict__.setdefault("_given", set())
+        if self.dest in given:
+            parser.error(f"{'/'.join(self.option_strings)} given twice")
+        given.add(self.dest)
+        super().__call__(parser, namespace, values, option_string)
+
+
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, no usage dump
         raise UsageError(f"{self.prog}: {message}")
+
+    def add_argument(self, *names, **kwargs):
+        if names and names[0].startswith("-") and kwargs.get("action", "store") == "store":
+            kwargs["action"] = _Once
+        return super().add_argument(*names, **kwargs)
 
 
 def _assignment(text: str) -> tuple[str, float]:
@@ -710,6 +727,9 @@ def _check_logs(args, robot, tensions, displacements):
         logs += [f for f in found if f not in logs]
     out = Path(args.estimates)
     folder = out if out.exists() else out.parent
+    if not out.exists() and not args.estimates.endswith(("/", os.sep)):
+        raise UsageError(f"tendonsense estimate: -o {args.estimates}: several logs write one "
+                         f"output each into a folder: -o {args.estimates}/ makes it")
     if out.exists() and not out.is_dir():
         raise ValueError(f"-o/--estimates {args.estimates}: not a folder (several logs write "
                          f"one output each into a folder)")
@@ -1109,8 +1129,10 @@ def _walk(args) -> float:
 
 
 def _stream(args, robot, noise) -> bool:
-    """Output rows on stdout as they are estimated; an interrupt ends cleanly."""
+    """Output rows on stdout as they are estimated (or into ESTIMATES.csv, atomically at the
+    end); an interrupt ends cleanly, every row read so far answered."""
     from .logs import stream_readings
+    from .readings import AtomicText
 
     source = "<stdin>" if args.readings == "-" else args.readings
 
@@ -1133,27 +1155,38 @@ def _stream(args, robot, noise) -> bool:
 
         if replay:
             lines = _paced(fh, viewer)
+    to_file = args.estimates not in (None, "-")
+    out = AtomicText(args.estimates) if to_file else sys.stdout
     rows = good = 0
+    ended = interrupted = False  # at the input's end or an interrupt the rows so far stand
     try:
         with fh:
-            rows, good = stream_readings(robot, lines, sys.stdout, args.unknown, forces,
-                                         noise, source, skipped, on_sample, args.dynamic,
-                                         _walk(args))
+            rows, good = stream_readings(robot, lines, out, args.unknown, forces, noise,
+                                         source, skipped, on_sample, args.dynamic, _walk(args))
         if not rows:
             raise ReadingsError(f"{source}: no data rows below the header")
+        ended = True
         if viewer is not None and args.readings != "-":
             print("tendonsense: the log is done; the view stays until Ctrl-C", file=sys.stderr)
             while True:
                 time.sleep(0.5)
     except KeyboardInterrupt:
-        return True
+        ended = interrupted = True
     except BrokenPipeError:  # the reader went away: stop quietly
         sys.stderr.close()
         return True
     finally:
         if viewer is not None:
             viewer.close()
-    return good == rows
+        if to_file:
+            if ended:
+                out.commit()
+            out.close()
+    if to_file:
+        summary = {"samples": rows, "converged": good, "output": str(args.estimates)}
+        print(json.dumps(summary) if args.json else
+              f"estimated {rows} samples: {good} converged; wrote {args.estimates}")
+    return interrupted or good == rows
 
 
 def _paced(lines, viewer):

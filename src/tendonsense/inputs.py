@@ -251,6 +251,15 @@ def check_unknowns(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unk
             if not 0.0 <= a <= b <= L:
                 what = f"X = {a:g} m" if a == b else f"the range {a:g}:{b:g} m"
                 raise ValueError(f"unknown force: {what} is outside the rod [0, {L:g}]")
+    fixed = [(i, u) for i, u in enumerate(unknowns, 1)
+             if isinstance(u, PointForceUnknown) and not u.located]
+    for k, (i, u) in enumerate(fixed):
+        for j, v in fixed[k + 1:]:
+            d, e = np.asarray(u.direction, float), np.asarray(v.direction, float)
+            if u.X == v.X and np.linalg.norm(np.cross(d, e)) <= 1e-9 * np.linalg.norm(d) * \
+                    np.linalg.norm(e):
+                raise ValueError(f"unknowns {i} and {j}: one force (X = {u.X:g} m, parallel "
+                                 f"directions): their magnitudes cannot be told apart")
 
 
 #: parameters :func:`~tendonsense.identification.identify` fits by name;

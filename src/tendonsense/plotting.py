@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -19,6 +20,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from .forward import model_for  # noqa: E402
 from .inputs import EDGE  # noqa: E402
 from .kinematics import frames_fn  # noqa: E402
+from .readings import write_bytes_atomic  # noqa: E402
 from .result import Result  # noqa: E402
 from .robot import Robot  # noqa: E402
 from .units import GF, newtons  # noqa: E402
@@ -27,10 +29,16 @@ SOURCES = ("length", "tension", "friction")
 COLOURS = {"length": "tab:blue", "tension": "tab:orange", "friction": "tab:green"}
 
 
-def _save(fig, path) -> Path:
+def _save(fig, path, tight: bool = True) -> Path:
+    """The figure written to ``path`` atomically, in the format its suffix names."""
     path = Path(path)
-    fig.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(fig)
+    buf = io.BytesIO()
+    try:
+        fig.savefig(buf, format=path.suffix[1:] or None, dpi=120,
+                    bbox_inches="tight" if tight else None)
+    finally:
+        plt.close(fig)
+    write_bytes_atomic(path, buf.getvalue())
     return path
 
 
@@ -486,9 +494,7 @@ def location_profile(result, path):
     ax.set_title("Where does the force act? Tendon-length misfit over X")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _save(fig, path, tight=False)
 
 
 def calibration(fit, path):

@@ -8,7 +8,7 @@ import csv
 import io
 import math
 import os
-import tempfile
+import secrets
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -383,12 +383,42 @@ def write_csv_atomic(path: str | Path, header, rows):
     write_text_atomic(path, buf.getvalue())
 
 
+def write_bytes_atomic(path: str | Path, data: bytes):
+    """:func:`write_text_atomic` for bytes (a figure)."""
+    path = Path(path)
+    try:
+        fd, tmp = beside(path)
+    except OSError as exc:
+        raise OSError(f"{path}: cannot write ({exc.strerror})") from None
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
 def write_text_atomic(path: str | Path, text: str):
     """Write next to the destination and move into place: a reader never sees a partial
     file, and a failed run leaves none."""
     with AtomicText(path) as out:
         out.write(text)
         out.commit()
+
+
+def beside(path: Path) -> tuple[int, str]:
+    """A new hidden file next to ``path``, open for writing: (descriptor, name). Made with
+    the permissions of a file the user creates (0o666 less the umask), which the file keeps
+    when it is moved into place (:func:`tempfile.mkstemp` would make it private)."""
+    for _ in range(100):
+        tmp = str(path.parent / f".{path.name}.{secrets.token_hex(4)}")
+        try:
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{path}: no free name beside it")
 
 
 class AtomicText(io.TextIOWrapper):
@@ -398,7 +428,7 @@ class AtomicText(io.TextIOWrapper):
     def __init__(self, path: str | Path):
         self.path = Path(path)
         try:
-            fd, self.tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", dir=self.path.parent)
+            fd, self.tmp = beside(self.path)
         except OSError as exc:
             raise OSError(f"{path}: cannot write ({exc.strerror})") from None
         super().__init__(os.fdopen(fd, "wb"), encoding="utf-8", newline="")
