@@ -137,6 +137,27 @@ def test_output_files_are_readable_as_the_users_own(prototype, tmp_path):
     assert all(p.stat().st_mode & 0o777 == 0o644 for p in tmp_path.iterdir())
 
 
+@pytest.mark.parametrize("table, words", [
+    ("case,tendon,unknown\n", "no column tension_N"),
+    ("case,tendon,unknown,force_X,tension_N,displacement_m,applied\n", "no data rows"),
+    ("case,tendon,unknown,force_X,tension_N,displacement_m,applied\n"
+     "a,t1,point_force,0.25,abc,-0.001,0.1\n", "row 1 (case 'a'): tension_N: not a number"),
+    ("case,tendon,unknown,force_X,tension_N,displacement_m,applied\n"
+     "a,t1,point_force,0.25,-1,-0.001,0.1\n", "row 1 (case 'a'): tension t1 = -1 N"),
+    ("case,tendon,unknown,force_X,tension_N,displacement_m,applied\n"
+     "a,t9,point_force,0.25,1,-0.001,0.1\n", "row 1 (case 'a'): "),
+])
+def test_an_experiments_table_is_checked_before_jax(tmp_path, table, words):
+    path = tmp_path / "table.csv"
+    path.write_text(table)
+    for command in ("experiments", "compare"):
+        out = tmp_path / "results"
+        rc, err, jax_loaded = refused_before_jax(command, PROTOTYPE, path, "-o", out) \
+            if command == "compare" else refused_before_jax(command, PROTOTYPE, path)
+        assert rc == 1 and words in err and len(err.strip().splitlines()) == 1, err
+        assert not jax_loaded and not out.exists()
+
+
 def test_a_live_log_into_a_file(tmp_path):
     """``--readings - -o FILE``: the rows go into FILE (atomically, at the end), standard
     output says what was written."""

@@ -106,16 +106,17 @@ def default_3d_forces_gf():
             for sx, sy, sz in itertools.product((-1, 1), repeat=3)]
 
 
-def sensitivity_3d(robot: Robot, forces_gf=None, tensions=(1.5, 1.5, 1.5),
+def sensitivity_3d(robot: Robot, forces_gf=None, tensions=1.5,
                    errors: Errors = Errors(), progress=None) -> list[dict]:
-    """Fig. 3b: 3-D tip forces from three tendons; per force and error source, the 27
-    estimates from every per-tendon error sign (−, 0, +) of amplitude error / n_tendons."""
+    """Fig. 3b: 3-D tip forces from every tendon (three in the paper), each at ``tensions``
+    (N: one for all, or one per tendon); per force and error source, the 3^n estimates from
+    every per-tendon error sign (−, 0, +) of amplitude error / n_tendons."""
     forces_gf = default_3d_forces_gf() if forces_gf is None else forces_gf
     L = robot.rod.length
     names = robot.tendon_names
     n = len(names)
     prob = problem(robot, names, [PointForceUnknown(L, tuple(e)) for e in np.eye(3)])
-    T = dict(zip(names, tensions))
+    T = dict(zip(names, np.broadcast_to(np.asarray(tensions, float), (n,)).tolist()))
     out = []
     for k, f_gf in enumerate(forces_gf):
         F = np.asarray(f_gf) * GF
@@ -161,16 +162,18 @@ def summary_3d(entries: list[dict]) -> dict:
     return out
 
 
-def resolution(robot: Robot, forces_gf=None, tensions=(1.5, 1.5, 1.5),
+def resolution(robot: Robot, forces_gf=None, tensions=1.5,
                tension_resolution: float = 0.025 / 3, progress=None) -> list[dict]:
-    """§IV resolution: at fixed tendon lengths, the smallest increment of each tip-force
-    component that changes at least one tension by the sensor resolution (first order,
+    """§IV resolution: at fixed tendon lengths, every tendon at ``tensions`` (N: one for
+    all, or one per tendon), the smallest increment of each tip-force component that changes
+    at least one tension by the sensor resolution (first order,
     ``dT/dF = −(∂y/∂T)⁻¹ ∂y/∂F`` with the equilibrium eliminated)."""
     forces_gf = default_3d_forces_gf() if forces_gf is None else forces_gf
     L = robot.rod.length
     names = robot.tendon_names
     prob = problem(robot, names, [PointForceUnknown(L, tuple(e)) for e in np.eye(3)])
-    T = dict(zip(names, tensions))
+    tensions = np.broadcast_to(np.asarray(tensions, float), (len(names),))
+    T = dict(zip(names, tensions.tolist()))
     rows = []
     for k, f_gf in enumerate(forces_gf):
         F = np.asarray(f_gf) * GF
@@ -212,12 +215,13 @@ def model_variants(robot: Robot) -> dict[str, Robot]:
             "3D-PC": robot.replace(strain=tuple(bend.items()))}
 
 
-def compare(robot: Robot, csv_path, progress=None) -> dict[str, list]:
-    """The estimator with each strain model on the paper's experiment rows."""
+def compare(robot: Robot, table, progress=None) -> dict[str, list]:
+    """The estimator with each strain model on the experiment rows of ``table`` (a path, or
+    its :func:`~tendonsense.experiments.read_experiments`)."""
     out = {}
     variants = model_variants(robot)
     for k, (name, r) in enumerate(variants.items()):
-        out[name] = experiments.run(r, csv_path)
+        out[name] = experiments.run(r, table)
         if progress:
             progress(k + 1, len(variants))
     return out

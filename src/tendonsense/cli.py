@@ -560,8 +560,11 @@ def _check(args, robot) -> None:
         args.sets_read = read_parameter_sets(args.sets, robot)
     elif cmd == "identify":
         _check_identify(args, robot)
-    elif cmd == "experiments" and not Path(args.csv).is_file():
-        raise ValueError(f"{args.csv}: no such file")
+    if cmd in ("experiments", "compare"):
+        from .experiments import read_experiments
+        args.table = read_experiments(args.csv, robot)
+    if cmd in ("sensitivity", "resolution", "compare"):
+        _check_analysis(args, robot)
     if (cmd == "view" or getattr(args, "view", False)) and not 0 < args.port < 65536:
         raise UsageError(f"tendonsense {cmd}: --port {args.port}: not a port number")
 
@@ -845,17 +848,35 @@ class _Progress:
         self.bar.close()
 
 
-def _analysis_run(args):
-    robot = load_robot(args.robot)
+def _check_analysis(args, robot):
+    """The analyses' robot (three tendons or more: a 3-D tip force), points and output
+    folder (made when the results are written)."""
+    if args.command in ("sensitivity", "resolution") and len(robot.tendons) < 3:
+        raise ValueError(f"{args.robot}: {args.command} estimates a 3-D tip force, which "
+                         f"takes at least 3 tendons; the robot has {len(robot.tendons)}")
+    if args.command == "sensitivity" and args.points < 1:
+        raise UsageError(f"tendonsense sensitivity: --points {args.points}: at least 1")
     out = Path(args.out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ValueError(f"-o/--out-dir {args.out_dir}: cannot make the folder "
-                         f"({exc.strerror})") from None
-    _writable(out / f"{args.command}_summary.json", "-o/--out-dir")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"-o/--out-dir {args.out_dir}: not a folder")
+    parent = next((p for p in (out, *out.parents) if p.exists()), Path("."))
+    if not os.access(parent, os.W_OK):
+        raise ValueError(f"-o/--out-dir {args.out_dir}: the folder {str(parent)!r} is not "
+                         f"writable")
+
+
+def _analysis_run(args, robot):
     from . import analyses, plotting
     from .readings import write_csv_atomic, write_text_atomic
+    out = Path(args.out_dir)
+
+    def folder():  # made once the results are in: a failed run leaves none
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ValueError(f"-o/--out-dir {args.out_dir}: cannot make the folder "
+                             f"({exc.strerror})") from None
+
     prog = _Progress(args, args.command)
     files = []
     if args.command == "sensitivity":
@@ -864,6 +885,7 @@ def _analysis_run(args):
         summary = {"single_tendon": analyses.single_summary(rows),
                    "three_tendons": analyses.summary_3d(entries)}
         keys = sorted({k for r in rows for k in r})
+        folder()
         write_csv_atomic(out / "sensitivity_single.csv", keys,
                          [[r.get(k, "") for k in keys] for r in rows])
         write_text_atomic(out / "sensitivity_3d.json", json.dumps(entries))
@@ -878,15 +900,17 @@ def _analysis_run(args):
         summary = analyses.resolution_summary(rows)
         ok = all(r["converged"] for r in rows)
         keys = ["force_gF", "resolution_x_g", "resolution_y_g", "resolution_z_g", "converged"]
+        folder()
         write_csv_atomic(out / "resolution.csv", keys,
                          [[" ".join(map(str, r[k])) if k == "force_gF" else r[k] for k in keys]
                           for r in rows])
         files += [out / "resolution.csv", plotting.resolution(rows, out / "resolution.png")]
     else:
         from . import experiments
-        table = analyses.compare(robot, args.csv, progress=prog)
+        table = analyses.compare(robot, args.table, progress=prog)
         summary = {m: experiments.summary(rows) for m, rows in table.items()}
         ok = all(r.converged for rows in table.values() for r in rows)
+        folder()
         write_csv_atomic(out / "compare.csv", ["model", "case", "applied", "estimate", "error"],
                          [[m, r.case, " ".join(map(str, r.applied)),
                            "" if r.ours is None else " ".join(map(str, r.ours)), r.error(r.ours)]
@@ -1246,7 +1270,7 @@ def _view(args, robot) -> bool:
 def _experiments(args, robot) -> bool:
     from . import experiments
     prog = _Progress(args, "experiments")
-    rows = experiments.run(robot, args.csv, progress=prog)
+    rows = experiments.run(robot, args.table, progress=prog)
     prog.close()
     summary = experiments.summary(rows)
     if args.json:
@@ -1454,10 +1478,10 @@ def main(argv=None) -> int:
         args = parser.parse_args(_join_negative_values(argv))
         if args.command in ("sensitivity", "resolution", "compare", "experiments"):
             _resolve_robot(args)
-        if args.command in ("sensitivity", "resolution", "compare"):
-            return 0 if _analysis_run(args) else _not_converged()
         robot = load_robot(args.robot)
         _check(args, robot)
+        if args.command in ("sensitivity", "resolution", "compare"):
+            return 0 if _analysis_run(args, robot) else _not_converged()
         if args.command == "estimate" and args.logs is not None:
             return _logs(args, robot)
         if args.command == "estimate":

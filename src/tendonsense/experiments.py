@@ -16,8 +16,25 @@ from pathlib import Path
 
 import numpy as np
 
-from .estimation import GravityUnknown, PointForceUnknown, estimate
+from . import inputs
+from .inputs import GravityUnknown, PointForceUnknown
 from .robot import Robot
+
+#: the columns every experiments table has (``force_X``, ``direction``, ``paper_estimate``
+#: and others are optional)
+COLUMNS = ("case", "tendon", "unknown", "tension_N", "displacement_m", "applied")
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """One row of the table: its readings (by tendon), unknowns and applied magnitudes."""
+
+    case: str
+    displacements: dict[str, float]
+    tensions: dict[str, float]
+    unknowns: list
+    applied: np.ndarray
+    paper: np.ndarray | None
 
 
 @dataclass(frozen=True)
@@ -34,16 +51,18 @@ class ExperimentRow:
         return float(np.linalg.norm(which - self.applied) / np.linalg.norm(self.applied))
 
 
-def _numbers(text: str) -> list[float]:
-    return [float(t) for t in re.split(r"[\s;,]+", text.strip()) if t]
+def _numbers(text: str, column: str) -> list[float]:
+    return [inputs.finite(column, t) for t in re.split(r"[\s;,]+", text.strip()) if t]
 
 
 def _unknowns(row: dict) -> list:
     kind = row["unknown"].strip().lower()
     if kind == "gravity":
         return [GravityUnknown()]
-    X = float(row["force_X"])
-    d = _numbers(row.get("direction", "") or "")
+    if not (row.get("force_X") or "").strip():
+        raise ValueError(f"unknown {row['unknown']!r}: a point force needs its force_X")
+    X = inputs.finite("force_X", row["force_X"])
+    d = _numbers(row.get("direction", "") or "", "direction")
     if "3d" in kind.replace("-", "") or not d:
         return [PointForceUnknown(X, tuple(e)) for e in np.eye(3)]
     if len(d) % 3:
@@ -51,24 +70,65 @@ def _unknowns(row: dict) -> list:
     return [PointForceUnknown(X, tuple(d[i:i + 3])) for i in range(0, len(d), 3)]
 
 
-def run(robot: Robot, path: str | Path, progress=None) -> list[ExperimentRow]:
-    """Estimate every row of the experiments CSV with ``robot``'s settings (nothing per row)."""
-    with open(path, newline="") as fh:
-        rows = list(csv.DictReader(fh))
+def _experiment(row: dict, robot: Robot) -> Experiment:
+    names = re.split(r"[\s;,+]+", row["tendon"].strip())
+    T = _numbers(row["tension_N"], "tension_N")
+    y = _numbers(row["displacement_m"], "displacement_m")
+    if not (len(names) == len(T) == len(y)):
+        raise ValueError(f"{len(names)} tendons, {len(T)} tensions, {len(y)} displacements")
+    displacements, tensions = dict(zip(names, y)), dict(zip(names, T))
+    inputs.readings(robot, displacements, tensions)  # the rules for every reading
+    unknowns = _unknowns(row)
+    inputs.check_unknowns(robot, names, unknowns)
+    applied = np.array(_numbers(row["applied"], "applied"))
+    if applied.size != len(unknowns):
+        raise ValueError(f"{applied.size} applied magnitudes for {len(unknowns)} unknowns")
+    paper = (row.get("paper_estimate") or "").strip()
+    return Experiment(row["case"], displacements, tensions, unknowns, applied,
+                      np.array(_numbers(paper, "paper_estimate")) if paper else None)
+
+
+def read_experiments(path: str | Path, robot: Robot) -> list[Experiment]:
+    """Every row of the experiments table at ``path``, checked against ``robot`` (no solve):
+    a ValueError naming the file, the row and what is wrong."""
+    try:
+        with open(path, newline="") as fh:
+            reader = csv.DictReader(fh)
+            rows = list(reader)
+            header = reader.fieldnames
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read ({exc.strerror})") from None
+    except (csv.Error, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not a CSV table ({exc})") from None
+    if not header:
+        raise ValueError(f"{path}: empty file, expected a header row")
+    missing = [c for c in COLUMNS if c not in header]
+    if missing:
+        raise ValueError(f"{path}: no column {missing[0]} (an experiments table has "
+                         f"{', '.join(COLUMNS)}; force_X, direction and paper_estimate "
+                         f"where they apply)")
+    if not rows:
+        raise ValueError(f"{path}: no data rows below the header")
     out = []
-    for row in rows:
-        names = re.split(r"[\s;,+]+", row["tendon"].strip())
-        T, y = _numbers(row["tension_N"]), _numbers(row["displacement_m"])
-        if not (len(names) == len(T) == len(y)):
-            raise ValueError(f"case {row['case']}: {len(names)} tendons, {len(T)} tensions, "
-                             f"{len(y)} displacements")
-        unknowns = _unknowns(row)
-        res = estimate(robot, dict(zip(names, y)), dict(zip(names, T)), unknowns)
-        applied = np.array(_numbers(row["applied"]))
-        paper = row.get("paper_estimate", "").strip()
-        out.append(ExperimentRow(
-            row["case"], applied, res.magnitudes if res.converged else None,
-            np.array(_numbers(paper)) if paper else None, bool(res.converged)))
+    for i, row in enumerate(rows, 1):
+        try:
+            out.append(_experiment(row, robot))
+        except ValueError as exc:
+            raise ValueError(f"{path}: row {i} (case {row['case']!r}): {exc}") from None
+    return out
+
+
+def run(robot: Robot, table: str | Path | list[Experiment], progress=None
+        ) -> list[ExperimentRow]:
+    """Estimate every row of the experiments ``table`` (a path, or its
+    :func:`read_experiments`) with ``robot``'s settings (nothing per row)."""
+    from .estimation import estimate
+    rows = read_experiments(table, robot) if isinstance(table, (str, Path)) else table
+    out = []
+    for e in rows:
+        res = estimate(robot, e.displacements, e.tensions, e.unknowns)
+        out.append(ExperimentRow(e.case, e.applied, res.magnitudes if res.converged else None,
+                                 e.paper, bool(res.converged)))
         if progress is not None:
             progress(len(out), len(rows))
     return out
