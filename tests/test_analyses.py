@@ -74,6 +74,9 @@ def test_comparison_and_shape_figures(prototype, tmp_path):
     table = analyses.compare(prototype, small)
     assert set(table) == {"GVS", "3D-PC+E", "3D-PC"}
     assert all(r.converged for rs in table.values() for r in rs)
+    # these rows load no twist: the model without torsion estimates exactly as GVS does,
+    # the one without elongation does not
+    assert analyses.same_estimates(table) == {"3D-PC+E": "GVS"}
     assert is_png(plotting.comparison(table, tmp_path / "d.png"))
     est = estimate(prototype, {"t1": -0.005}, {"t1": 2.1}, [PointForceUnknown(0.25, (0, 0, -1))])
     path = plotting.shape(

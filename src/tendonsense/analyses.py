@@ -215,6 +215,20 @@ def model_variants(robot: Robot) -> dict[str, Robot]:
             "3D-PC": robot.replace(strain=tuple(bend.items()))}
 
 
+def same_estimates(table: dict[str, list]) -> dict[str, str]:
+    """Models of a :func:`compare` table whose estimates equal an earlier model's on every
+    row (to 1e-9 relative): {model: the earlier model}."""
+    out, models = {}, list(table)
+    for k, m in enumerate(models):
+        for earlier in models[:k]:
+            pairs = list(zip(table[m], table[earlier]))
+            if all(a.ours is not None and b.ours is not None and np.allclose(
+                    a.ours, b.ours, rtol=1e-9, atol=0.0) for a, b in pairs):
+                out[m] = earlier
+                break
+    return out
+
+
 def compare(robot: Robot, table, progress=None) -> dict[str, list]:
     """The estimator with each strain model on the experiment rows of ``table`` (a path, or
     its :func:`~tendonsense.experiments.read_experiments`)."""
