@@ -29,7 +29,7 @@ from .inputs import GravityUnknown, Noise, PointForceUnknown
 from .readings import ReadingsError
 from .robot import RobotFileError, load_robot
 from .settings import pin
-from .units import GF, newtons
+from .units import GF, newtons, newtons_range
 
 DESCRIPTION = """\
 Shape and external forces of a tendon-driven soft robot from its tendon readings, with a
@@ -808,9 +808,15 @@ def _given(args) -> str:
     """What the user gave, for a figure's title."""
     parts = [f"{n} length change {v * 1e3:+.3f} mm" for n, v in args.displacement.items()]
     parts += [f"{n} tension {v:.3g} N" for n, v in args.tension.items()]
-    parts += [f"{np.linalg.norm(f):.3g} N known force at X = {X:g} m"
-              for X, f in _point_forces(args)]
+    parts += _forces_text(args)
+    parts += [f"{n} {'stuck' if d == 'stuck' else f'sliding {d}'}"
+              for n, d in getattr(args, "sliding", {}).items()]
     return "given: " + (", ".join(parts) if parts else "no tension (gravity only)")
+
+
+def _forces_text(args) -> list[str]:
+    return [f"{np.linalg.norm(f):.3g} N known force at X = {X:g} m"
+            for X, f in _point_forces(args)]
 
 
 def _plot_shape(args, robot, result, unknowns=()):
@@ -818,8 +824,10 @@ def _plot_shape(args, robot, result, unknowns=()):
     estimated = []
     if result.magnitudes is not None:
         where = result.extra.get("locations") or [None] * len(unknowns)
+        band = result.extra.get("magnitude_range")  # a stuck tendon's
         estimated = [(u.X if where[i] is None else where[i],
-                      result.magnitudes[i] * np.asarray(u.direction), result.sigma[i])
+                      result.magnitudes[i] * np.asarray(u.direction), result.sigma[i],
+                      *(() if band is None else (tuple(band[i]),)))
                      for i, u in enumerate(unknowns) if isinstance(u, PointForceUnknown)]
     if "location_profile" in result.extra:
         plotting.location_profile(result, _beside(args.plot, "_location"))
@@ -988,12 +996,14 @@ def magnitude_text(u, value: float, sigma=None) -> str:
 
 def range_text(u, low: float, high: float) -> str:
     """A magnitude's range over a friction band, open where it is infinite."""
+    if isinstance(u, PointForceUnknown):
+        return newtons_range(low, high)
     if np.isfinite(low) and np.isfinite(high):
-        return f"between {magnitude_text(u, low)} and {magnitude_text(u, high)}"
+        return f"between {low:.4g} and {high:.4g}"
     if np.isfinite(low):
-        return f"at least {magnitude_text(u, low)}"
+        return f"at least {low:.4g}"
     if np.isfinite(high):
-        return f"at most {magnitude_text(u, high)}"
+        return f"at most {high:.4g}"
     return "unbounded"
 
 
@@ -1414,7 +1424,11 @@ def _simulate(args, robot) -> bool:
     write_csv_atomic(args.log, list(cols), np.column_stack(list(cols.values())).tolist())
     if args.plot:
         from . import plotting
-        plotting.simulation(sim, args.plot, title=f"{robot.name}: simulated motion")
+        plotting.simulation(sim, args.plot, title=f"{robot.name}: simulated motion",
+                            given="given: the tensions over time (top)"
+                            + "".join(f", {f}" for f in _forces_text(args))
+                            + (", from the equilibrium at t = 0" if args.from_equilibrium
+                               else ", from the straight rod at rest"))
     if args.json:
         print(json.dumps({"time": sim.time.tolist(),
                           "markers": {m: p.tolist() for m, p in sim.markers.items()},

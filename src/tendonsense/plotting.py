@@ -23,7 +23,7 @@ from .kinematics import frames_fn  # noqa: E402
 from .readings import write_bytes_atomic  # noqa: E402
 from .result import Result  # noqa: E402
 from .robot import Robot  # noqa: E402
-from .units import GF, newtons  # noqa: E402
+from .units import GF, newtons, newtons_range  # noqa: E402
 
 SOURCES = ("length", "tension", "friction")
 COLOURS = {"length": "tab:blue", "tension": "tab:orange", "friction": "tab:green"}
@@ -66,7 +66,8 @@ _LABEL_BOX = dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.8)
 
 
 Load = tuple[float, Sequence[float]]
-Estimated = tuple[float, Sequence[float], float | None]
+#: an estimated load: (X, f N global, σ N or None[, (low, high) N: its range, a stuck tendon's])
+Estimated = tuple
 
 
 def shape(result: Result, path, robot: Robot, *, forces: Sequence[Load] = (),
@@ -86,12 +87,15 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     tension and the point loads drawn to one scale, labelled in N and gF.
 
     ``forces`` are known loads ``[(X, f N global)]``, ``estimated`` estimated ones
-    ``[(X, f N global, σ N or None)]``; ``measured_markers`` ({name: xyz m}) are drawn as
+    ``[(X, f N global, σ N or None[, (low, high) N])]`` (with the range of a stuck tendon's
+    band, labelled by it); ``measured_markers`` ({name: xyz m}) are drawn as
     crosses. ``title`` and ``given`` are the two title lines. With ``failed`` (a reason) or a
     result that did not converge, the views are stamped NOT CONVERGED."""
     L = robot.rod.length
-    loads = ([(X, np.asarray(f, float), None, KNOWN) for X, f in forces]
-             + [(X, np.asarray(f, float), s, ESTIMATED) for X, f, s in estimated])
+    loads = ([(X, np.asarray(f, float), newtons(float(np.linalg.norm(f))), KNOWN)
+              for X, f in forces]
+             + [(X, np.asarray(f, float), _estimate_label(f, s, *rng), ESTIMATED)
+                for X, f, s, *rng in estimated])
     routes = [np.linspace(0.0, L, 61) if t.continuous else np.asarray(t.disks, float)
               for t in robot.tendons]
     model = model_for(robot)
@@ -246,6 +250,14 @@ def _separate(fig, axes, tries=6):
             placed.append(t.get_window_extent(renderer))
 
 
+def _estimate_label(f, sigma, band=None) -> str:
+    """An estimated force's label: its size ± σ, or with a stuck tendon the range it lies in."""
+    size = float(np.linalg.norm(f))
+    if band is None:
+        return newtons(size, sigma)
+    return f"{newtons(size)} mid-band;\na stuck tendon: {newtons_range(*band)}"
+
+
 def _draw_arrows(ax, view, arrows):
     """Force arrows ending at their point, each labelled beyond its tail (the longest tail of
     the arrows along it) in the view where it is longest (the first of equals); a force
@@ -253,12 +265,12 @@ def _draw_arrows(ax, view, arrows):
     _, i, j = VIEWS[view]
     out = np.cross(np.eye(3)[i], np.eye(3)[j])
     placed: list = []
-    for a, v, f, sigma, colour in sorted(arrows, key=lambda r: -np.linalg.norm(r[1])):
+    for a, v, f, label, colour in sorted(arrows, key=lambda r: -np.linalg.norm(r[1])):
         v2 = v[[i, j]]
         if not np.linalg.norm(v):
             if view == 0:
                 ax.scatter(*a[[i, j]], s=60, color=colour, zorder=4)
-                ax.annotate(newtons(0.0, sigma), a[[i, j]], xytext=(0, 12), zorder=6,
+                ax.annotate(label, a[[i, j]], xytext=(0, 12), zorder=6,
                             textcoords="offset points", color=colour, fontsize=8,
                             bbox=_LABEL_BOX, ha="center", va="bottom")
             continue
@@ -286,7 +298,7 @@ def _draw_arrows(ax, view, arrows):
             where = (tail[0] - x0) / (x1 - x0)
             align["ha"] = "right" if where > 2 / 3 else "left" if where < 1 / 3 else "center"
         shift = 5 * d + np.array([0.0, 12.0 * near * (1 if d[1] >= 0 else -1)])
-        ax.annotate(newtons(float(np.linalg.norm(f)), sigma), tail, xytext=shift,
+        ax.annotate(label, tail, xytext=shift,
                     textcoords="offset points", color=colour, fontsize=8, bbox=_LABEL_BOX,
                     zorder=6, **align)
 
@@ -410,7 +422,7 @@ def sensitivity_single(rows, path):
     ax.set_xlabel("tendon length change y (mm)")
     ax.set_ylabel("estimated tip force F_z (gF)")
     ax.set_title("Estimated tip force with length, tension and friction errors, one tendon")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3)
     return _save(fig, path)
 
 
@@ -442,7 +454,9 @@ def ellipsoids(entries, path):
     ax.set_ylabel("F_y (gF)")
     ax.set_zlabel("F_z (gF)")
     ax.set_title("Estimated 3-D tip forces under per-tendon errors (2-σ ellipsoids)")
-    ax.legend(fontsize=8)
+    ax.legend(handles=[Line2D([], [], ls="", marker="o", color="black", label="applied")]
+              + [Line2D([], [], color=COLOURS[s], lw=2, label=f"{s} error") for s in SOURCES],
+              fontsize=8)
     return _save(fig, path)
 
 
@@ -450,7 +464,7 @@ def resolution(rows, path):
     fig, ax = plt.subplots(figsize=(6, 4))
     data = [[r[f"resolution_{a}_g"] for r in rows] for a in "xyz"]
     ax.boxplot(data, tick_labels=["Δx", "Δy", "Δz"])
-    ax.set_ylabel("smallest detectable increment (g)")
+    ax.set_ylabel("smallest detectable increment (gF)")
     ax.set_title("Smallest detectable force change per axis\n(tension sensors resolving ±(2.5/3) %)")
     return _save(fig, path)
 
@@ -528,10 +542,15 @@ def calibration(fit, path):
     return _save(fig, path)
 
 
-def simulation(sim, path, title: str = "simulated motion"):
+#: the axes of a marker's motion, in colours no tendon takes
+AXIS_COLOURS = {"x": "tab:red", "y": "tab:purple", "z": "tab:brown"}
+
+
+def simulation(sim, path, title: str = "simulated motion", given: str = ""):
     """A simulated motion over time: the tensions (N; solid pulled in, dotted stuck, dashed
-    paid out), the tendon length changes (mm) and the last marker's position relative to its
-    start (mm); samples that did not converge shaded."""
+    paid out), the tendon length changes (mm; a tendon whose curve repeats an earlier one's
+    drawn dashed over it) and the last marker's position relative to its start (mm);
+    samples that did not converge shaded. ``given`` is a second title line."""
     t = sim.time
     fig, axes = plt.subplots(3, 1, figsize=(7.5, 7), sharex=True)
     for n, T in sim.tensions.items():
@@ -546,13 +565,17 @@ def simulation(sim, path, title: str = "simulated motion"):
                                      label=label)
                 color = line.get_color()
     axes[0].set_ylabel("tension (N)")
+    drawn = []
     for n, y in sim.displacements.items():
-        axes[1].plot(t, y * 1e3, label=n)
+        again = next((m for m, z in drawn if np.allclose(y, z, rtol=0, atol=1e-7)), None)
+        axes[1].plot(t, y * 1e3, "--" if again else "-",
+                     label=n if again is None else f"{n} (as {again})")
+        drawn.append((n, y))
     axes[1].set_ylabel("length change (mm)\n(negative = pulled in)")
     if sim.markers:
         name, p = list(sim.markers.items())[-1]
         for i, a in enumerate("xyz"):
-            axes[2].plot(t, (p[:, i] - p[0, i]) * 1e3, label=a)
+            axes[2].plot(t, (p[:, i] - p[0, i]) * 1e3, color=AXIS_COLOURS[a], label=a)
         axes[2].set_ylabel(f"marker {name}:\nmove from start (mm)")
     else:
         axes[2].set_visible(False)
@@ -566,6 +589,7 @@ def simulation(sim, path, title: str = "simulated motion"):
             ax.grid(alpha=0.3)
     axes[-1 if sim.markers else 1].set_xlabel("time (s)")
     axes[0].set_title(title + ("" if not bad.any() else
-                               f" — NOT CONVERGED at {int(bad.sum())} samples (shaded)"))
+                               f" — NOT CONVERGED at {int(bad.sum())} samples (shaded)")
+                      + (f"\n{given}" if given else ""), fontsize=10)
     fig.tight_layout()
     return _save(fig, path)

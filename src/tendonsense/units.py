@@ -1,5 +1,7 @@
 """Units shown to users: forces in N and gram-force, lengths in m and mm (no JAX, no numpy)."""
 
+import math
+
 #: 1 gram-force in newtons
 GF = 9.80665e-3
 
@@ -10,3 +12,15 @@ def newtons(value: float, sigma: float | None = None) -> str:
     if sigma is not None:
         text += f" ± {sigma:.2g} N ({sigma / GF:.1f} gF)"
     return text
+
+
+def newtons_range(low: float, high: float) -> str:
+    """A force's range, open where it is infinite, e.g. ``between 0.0756 N (7.7 gF) and
+    0.492 N (50.2 gF)``."""
+    if math.isfinite(low) and math.isfinite(high):
+        return f"between {newtons(low)} and {newtons(high)}"
+    if math.isfinite(low):
+        return f"at least {newtons(low)}"
+    if math.isfinite(high):
+        return f"at most {newtons(high)}"
+    return "unbounded"
