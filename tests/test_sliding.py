@@ -178,7 +178,11 @@ def test_cli(tmp_path):
     (low, high), = out["magnitude_range"]
     assert low < out["magnitudes"][0] < high
     for args, words in ((("solve", "--tension", "t1=2", "--sliding", "t1=stuck"), "stuck"),
-                        (("solve", "--tension", "t1=2", "--sliding", "t1=up"), "in, out"),
+                        (("solve", "--tension", "t1=2", "--sliding", "t1=up"),
+                         "the direction is in or out"),
+                        (("estimate", "--displacement", "t1=-0.003", "--tension", "t1=2",
+                          "--unknown", "0.25,0,0,-1", "--sliding", "t1=up"),
+                         "the direction is in, out or stuck"),
                         (("solve", "--tension", "t1=2", "--sliding", "t1=out",
                           "--sliding", "t1=in"), "twice"),
                         (("fk", "--displacement", "t1=-0.003", "--sliding", "t9=out"),

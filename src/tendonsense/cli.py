@@ -100,6 +100,12 @@ def _simulated_direction(text: str):
     return _direction(text, inputs.SIMULATED_SLIDING)
 
 
+def _forward_direction(text: str):
+    """in or out (stuck is parsed, to be refused with its reason: a solve needs a profile)."""
+    name, _, value = text.partition("=")
+    return (name, value) if name and value == "stuck" else _direction(text, ("in", "out"))
+
+
 SLIDING_HELP = ("the direction tendon NAME slides through its guides, which sets the sense of "
                 "its friction: in (pulled in, the tension fades toward the anchor; the "
                 "default), out (paid out, it grows toward the anchor){}; once per tendon")
@@ -132,7 +138,10 @@ def _unknown(text: str):
             X = float(where)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
-    d = _numbers(3, what)(rest)
+    try:
+        d = _numbers(3, what)(rest)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
     try:
         return PointForceUnknown(X, tuple(d))
     except ValueError as exc:
@@ -220,7 +229,7 @@ def build_parser() -> argparse.ArgumentParser:
                    metavar="NAME=N",
                    help="a tendon's tension in newtons (>= 0); once per tendon; tendons not "
                         "named are slack")
-    p.add_argument("--sliding", action="append", default=[], type=_direction,
+    p.add_argument("--sliding", action="append", default=[], type=_forward_direction,
                    metavar="NAME=in|out", help=SLIDING_HELP.format(""))
 
     p = command("fk", "shape and tensions from tendon length changes (forward kinematics)",
@@ -235,7 +244,7 @@ def build_parser() -> argparse.ArgumentParser:
                    metavar="NAME=N",
                    help="the tension (N, >= 0) of a tendon whose length change is not given; "
                         "tendons not named are slack")
-    p.add_argument("--sliding", action="append", default=[], type=_direction,
+    p.add_argument("--sliding", action="append", default=[], type=_forward_direction,
                    metavar="NAME=in|out", help=SLIDING_HELP.format(""))
 
     p = command("estimate", "shape and unknown forces from tendon readings (estimation)",
@@ -829,14 +838,16 @@ def _plot_shape(args, robot, result, unknowns=()):
                       result.magnitudes[i] * np.asarray(u.direction), result.sigma[i],
                       *(() if band is None else (tuple(band[i]),)))
                      for i, u in enumerate(unknowns) if isinstance(u, PointForceUnknown)]
+    written = [args.plot]
     if "location_profile" in result.extra:
-        plotting.location_profile(result, _beside(args.plot, "_location"))
+        written.append(plotting.location_profile(result, _beside(args.plot, "_location")))
     what = {"solve": "shape under the given tensions (forward statics)",
             "fk": "shape for the given tendon length changes (forward kinematics)",
             "estimate": "shape and forces estimated from tendon readings"}[args.command]
     plotting.shape(result, args.plot, robot, forces=_point_forces(args), estimated=estimated,
                    title=f"{robot.name}: {what}", given=_given(args),
                    failed=None if result.converged else result.extra.get("note", ""))
+    return written
 
 
 class _Progress:
@@ -1069,7 +1080,9 @@ def _single(args, robot) -> bool:
     _print_result(result, args.json, title, robot, args.unknown
                   if args.command == "estimate" else ())
     if args.plot:
-        _plot_shape(args, robot, result, getattr(args, "unknown", ()))
+        written = _plot_shape(args, robot, result, getattr(args, "unknown", ()))
+        if not args.json:
+            print("wrote " + ", ".join(str(p) for p in written))
     return result.converged
 
 
