@@ -158,6 +158,23 @@ def test_an_experiments_table_is_checked_before_jax(tmp_path, table, words):
         assert not jax_loaded and not out.exists()
 
 
+def test_several_logs_name_their_skipped_rows(tmp_path):
+    """Several logs report a bad row as one log does: the log, the row and the reason."""
+    rows = (ROOT / "examples" / "tutorial" / "readings.csv").read_text().splitlines()[:6]
+    good, bad = tmp_path / "good.csv", tmp_path / "bad.csv"
+    good.write_text("\n".join(rows) + "\n")
+    cells = rows[2].split(",")
+    cells[1] = "-1"
+    bad.write_text("\n".join([*rows[:2], ",".join(cells), *rows[3:]]) + "\n")
+    p = cli("estimate", PROTOTYPE, "--readings", good, bad, "--unknown", "0.25,0,0,-1",
+            "-o", f"{tmp_path / 'out'}/")
+    assert p.returncode == 3, p.stderr
+    assert p.stderr.splitlines() == [
+        f"tendonsense: {bad}: row 2 skipped: tension t1 = -1 N is negative (a tendon cannot "
+        f"push; slack is 0)", "tendonsense: not every solve converged (marked converged = false)"]
+    assert "1 skipped" in p.stdout
+
+
 def test_a_live_log_into_a_file(tmp_path):
     """``--readings - -o FILE``: the rows go into FILE (atomically, at the end), standard
     output says what was written."""

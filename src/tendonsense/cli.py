@@ -1160,8 +1160,14 @@ def _logs(args, robot) -> int:
         finally:
             prog.close()
     failed = [s for s in done if s.error]
-    for s in failed:
-        print(f"tendonsense: {s.error}", file=sys.stderr)
+    for s in done:
+        if s.error:
+            print(f"tendonsense: {s.error}", file=sys.stderr)
+        for row, why in s.skipped_rows:
+            print(f"tendonsense: {s.log}: row {row} skipped: {why}", file=sys.stderr)
+        if s.skipped > len(s.skipped_rows):
+            print(f"tendonsense: {s.log}: {s.skipped - len(s.skipped_rows)} more rows "
+                  f"skipped", file=sys.stderr)
     total = {k: sum(getattr(s, k) for s in done) for k in ("samples", "converged", "skipped")}
     if args.json:
         print(json.dumps({"logs": [s.to_json() for s in done], **total,

@@ -16,9 +16,9 @@ import numpy as np
 from .estimation import Noise, Unknown, problem
 from .inputs import WALK, check_unknowns
 from .online import OnlineEstimator
-from .readings import (LogSummary, ReadingsError, Sample, has_time, located, output_header,
-                       output_row, output_rows, parse_header, parse_row, read_readings,
-                       with_sliding, write_csv_atomic)
+from .readings import (SKIPPED_SHOWN, LogSummary, ReadingsError, Sample, has_time, located,
+                       output_header, output_row, output_rows, parse_header, parse_row,
+                       read_readings, with_sliding, write_csv_atomic)
 from .robot import Robot
 from .sliding import FrictionHistory, band_range
 from .tracking import SampleEstimate, series_chunks
@@ -147,9 +147,10 @@ def estimate_file(robot: Robot, log: str | Path, out: str | Path, unknowns: Sequ
         msg = str(exc)
         return LogSummary(str(log), str(out),
                           error=msg if msg.startswith(str(log)) else f"{log}: {msg}")
+    bad = [(s.row, s.error) for s in samples if s.error]
     return LogSummary(str(log), str(out), len(samples),
-                      sum(bool(r is not None and r.converged) for r in results),
-                      sum(bool(s.error) for s in samples))
+                      sum(bool(r is not None and r.converged) for r in results), len(bad),
+                      skipped_rows=tuple(bad[:SKIPPED_SHOWN]))
 
 
 def online_estimator(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],

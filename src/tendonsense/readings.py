@@ -597,6 +597,10 @@ def read_tension_schedule(path: str | Path,
     return {n: (t, data[:, header.index(f"tension_{n}")]) for n in names}
 
 
+#: skipped rows a :class:`LogSummary` names (the rest are counted)
+SKIPPED_SHOWN = 20
+
+
 @dataclass(frozen=True)
 class LogSummary:
     """What became of one log of many (:func:`tendonsense.logs.estimate_file`): its rows' counts, or why it
@@ -608,6 +612,8 @@ class LogSummary:
     converged: int = 0
     skipped: int = 0
     error: str | None = None
+    #: the first :data:`SKIPPED_SHOWN` skipped rows: (row, why)
+    skipped_rows: tuple[tuple[int, str], ...] = ()
 
     def to_json(self) -> dict:
         return {"log": self.log, "output": None if self.error else self.output,
