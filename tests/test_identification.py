@@ -96,7 +96,7 @@ def write_snapshots(path, robot, snaps, drop=None):
 
 def test_missing_marker_value_is_named(truth, tmp_path):
     write_snapshots(tmp_path / "s.csv", truth, snapshots(truth), drop="marker_tip_y")
-    with pytest.raises(SnapshotError, match="row 2: column marker_tip_y is missing"):
+    with pytest.raises(SnapshotError, match="row 2: marker_tip_y is empty"):
         read_snapshots(tmp_path / "s.csv", truth)
 
 

@@ -257,7 +257,10 @@ def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
             text = (row.get(col) or "").strip()
             if not text:
                 if required:
-                    raise SnapshotError(f"{path}: snapshot row {i}: column {col} is missing")
+                    raise SnapshotError(f"{path}: snapshot row {i}: {col} is empty (a value "
+                                        f"is needed: a slack tendon's tension is 0)"
+                                        if col.startswith("tension_") else
+                                        f"{path}: snapshot row {i}: {col} is empty")
                 return None
             v = _number(text)
             if not math.isfinite(v):
