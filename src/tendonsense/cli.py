@@ -834,9 +834,11 @@ def _plot_shape(args, robot, result, unknowns=()):
     if result.magnitudes is not None:
         where = result.extra.get("locations") or [None] * len(unknowns)
         band = result.extra.get("magnitude_range")  # a stuck tendon's
-        estimated = [(u.X if where[i] is None else where[i],
-                      result.magnitudes[i] * np.asarray(u.direction), result.sigma[i],
-                      *(() if band is None else (tuple(band[i]),)))
+        X_sigma = result.extra.get("location_sigma") or [None] * len(unknowns)
+        estimated = [plotting.Estimated(u.X if where[i] is None else where[i],
+                                        result.magnitudes[i] * np.asarray(u.direction),
+                                        result.sigma[i],
+                                        None if band is None else tuple(band[i]), X_sigma[i])
                      for i, u in enumerate(unknowns) if isinstance(u, PointForceUnknown)]
     written = [args.plot]
     if "location_profile" in result.extra:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 from collections.abc import Sequence
+from typing import NamedTuple
 from pathlib import Path
 
 import matplotlib
@@ -66,8 +67,16 @@ _LABEL_BOX = dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.8)
 
 
 Load = tuple[float, Sequence[float]]
-#: an estimated load: (X, f N global, σ N or None[, (low, high) N: its range, a stuck tendon's])
-Estimated = tuple
+class Estimated(NamedTuple):
+    """An estimated point load: where (m), the force (N, global), its 1-σ size (N), the
+    range of its size over a stuck tendon's band (N) and, for a force whose location was
+    estimated, that location's 1-σ band (m)."""
+
+    X: float
+    force: Sequence[float]
+    sigma: float | None = None
+    band: tuple[float, float] | None = None
+    X_sigma: float | None = None
 
 
 def shape(result: Result, path, robot: Robot, *, forces: Sequence[Load] = (),
@@ -87,15 +96,14 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     tension and the point loads drawn to one scale, labelled in N and gF.
 
     ``forces`` are known loads ``[(X, f N global)]``, ``estimated`` estimated ones
-    ``[(X, f N global, σ N or None[, (low, high) N])]`` (with the range of a stuck tendon's
-    band, labelled by it); ``measured_markers`` ({name: xyz m}) are drawn as
+    (:class:`Estimated`, or tuples of its fields); ``measured_markers`` ({name: xyz m}) are drawn as
     crosses. ``title`` and ``given`` are the two title lines. With ``failed`` (a reason) or a
     result that did not converge, the views are stamped NOT CONVERGED."""
     L = robot.rod.length
     loads = ([(X, np.asarray(f, float), newtons(float(np.linalg.norm(f))), KNOWN)
               for X, f in forces]
-             + [(X, np.asarray(f, float), _estimate_label(f, s, *rng), ESTIMATED)
-                for X, f, s, *rng in estimated])
+             + [(e.X, np.asarray(e.force, float), _estimate_label(e), ESTIMATED)
+                for e in (Estimated(*e) for e in estimated)])
     routes = [np.linspace(0.0, L, 61) if t.continuous else np.asarray(t.disks, float)
               for t in robot.tendons]
     model = model_for(robot)
@@ -250,12 +258,15 @@ def _separate(fig, axes, tries=6):
             placed.append(t.get_window_extent(renderer))
 
 
-def _estimate_label(f, sigma, band=None) -> str:
-    """An estimated force's label: its size ± σ, or with a stuck tendon the range it lies in."""
-    size = float(np.linalg.norm(f))
-    if band is None:
-        return newtons(size, sigma)
-    return f"{newtons(size)} mid-band;\na stuck tendon: {newtons_range(*band)}"
+def _estimate_label(e: Estimated) -> str:
+    """An estimated force's label: its size ± σ, or with a stuck tendon the range it lies in;
+    where its location was estimated, that location ± σ."""
+    size = float(np.linalg.norm(e.force))
+    text = (newtons(size, e.sigma) if e.band is None else
+            f"{newtons(size)} mid-band;\na stuck tendon: {newtons_range(*e.band)}")
+    if e.X_sigma is not None:
+        text += f"\nat X = {e.X * 1e3:.0f} ± {e.X_sigma * 1e3:.0f} mm (1 σ)"
+    return text
 
 
 def _draw_arrows(ax, view, arrows):
@@ -391,7 +402,7 @@ def _stamp(fig, axes, failed):
     for ax in axes:
         for spine in ax.spines.values():
             spine.set(color="red", lw=2)
-    left, bottom, right, top = _extent(axes)
+    left, bottom, right, top = _extent(axes[:1])  # on the first view, clear of the others
     width = (right - left) * fig.get_figwidth() * 72
     x, y = (left + right) / 2, (bottom + top) / 2
     fig.text(x, y, "NOT CONVERGED", fontsize=float(np.clip(width / (0.75 * 13), 14, 40)),
@@ -399,8 +410,8 @@ def _stamp(fig, axes, failed):
              alpha=0.8, zorder=10, bbox=dict(fc="white", ec="red", lw=2, alpha=0.5))
     if failed:
         fig.text(x, y - 0.08 / fig.get_figheight(), failed, color="red", ha="center", va="top",
-                 fontsize=float(np.clip(width / (0.55 * len(failed)), 9, 16)), zorder=10,
-                 bbox=dict(fc="white", ec="none", alpha=0.5))
+                 fontsize=float(np.clip(width / (0.55 * len(failed)), 8, 14)), zorder=10,
+                 wrap=True, bbox=dict(fc="white", ec="none", alpha=0.85))
 
 
 def sensitivity_single(rows, path):
