@@ -135,6 +135,9 @@ def test_output_files_are_readable_as_the_users_own(prototype, tmp_path):
         os.umask(old)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["raw.bin", "rows.csv", "shape.png"]
     assert all(p.stat().st_mode & 0o777 == 0o644 for p in tmp_path.iterdir())
+    (tmp_path / "rows.csv").chmod(0o600)  # a file made private stays so when rewritten
+    write_text_atomic(tmp_path / "rows.csv", "a,b\n1,2\n")
+    assert (tmp_path / "rows.csv").stat().st_mode & 0o777 == 0o600
 
 
 @pytest.mark.parametrize("table, words", [
@@ -145,7 +148,11 @@ def test_output_files_are_readable_as_the_users_own(prototype, tmp_path):
     ("case,tendon,unknown,force_X,tension_N,displacement_m,applied\n"
      "a,t1,point_force,0.25,-1,-0.001,0.1\n", "row 1 (case 'a'): tension t1 = -1 N"),
     ("case,tendon,unknown,force_X,tension_N,displacement_m,applied\n"
-     "a,t9,point_force,0.25,1,-0.001,0.1\n", "row 1 (case 'a'): "),
+     "a,t9,point_force,0.25,1,-0.001,0.1\n", "row 1 (case 'a'): displacement t9: no such"),
+    ("case,tendon,unknown,force_X,tension_N,displacement_m,applied\n"
+     "a,t1,point_force,0.25\n", "row 1 (case 'a'): 1 tendons, 0 tensions"),
+    ("case,tendon,unknown,force_X,tension_N,displacement_m,applied\n"
+     "a,t1 t1,point_force,0.25,1 2,-0.001 -0.002,0.1\n", "a tendon named twice"),
 ])
 def test_an_experiments_table_is_checked_before_jax(tmp_path, table, words):
     path = tmp_path / "table.csv"
@@ -183,9 +190,46 @@ def test_a_live_log_into_a_file(tmp_path):
     p = cli("estimate", PROTOTYPE, "--readings", "-", "--unknown", "0.25,0,0,-1", "-o", out,
             stdin="\n".join(rows) + "\n")
     assert p.returncode == 0, p.stderr
-    assert p.stdout == f"estimated 5 samples: 5 converged; wrote {out}\n"
+    assert p.stdout == f"estimated 5 samples: 5 converged, 0 skipped; wrote {out}\n"
     written = list(csv.DictReader(open(out)))
     assert [r["row"] for r in written] == ["1", "2", "3", "4", "5"]
+
+
+class _Interrupted:
+    """Standard input that gives ``lines`` and then Ctrl-C."""
+
+    def __init__(self, lines):
+        self.lines = lines
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def __iter__(self):
+        yield from self.lines
+        raise KeyboardInterrupt
+
+
+def test_a_live_log_into_a_file_interrupted(tmp_path, monkeypatch, capsys):
+    """Ctrl-C ends a live log into a file with the rows answered so far, counted; before its
+    first row it writes nothing (a file already there stays as it was)."""
+    from tendonsense import cli as tcli
+    rows = (ROOT / "examples" / "tutorial" / "readings.csv").read_text().splitlines(True)[:5]
+    out = tmp_path / "live.csv"
+    args = ["estimate", PROTOTYPE, "--readings", "-", "--unknown", "0.25,0,0,-1", "-o", out,
+            "--json"]
+    monkeypatch.setattr(sys, "stdin", _Interrupted(rows))
+    assert tcli.main(args) == 0
+    assert json.loads(capsys.readouterr().out) == {"samples": 4, "converged": 4, "skipped": 0,
+                                                   "output": str(out)}
+    assert len(list(csv.DictReader(open(out)))) == 4
+    out.write_text("kept\n")
+    monkeypatch.setattr(sys, "stdin", _Interrupted(rows[:1]))
+    assert tcli.main(args) == 0
+    assert "no row answered; nothing written" in capsys.readouterr().err
+    assert out.read_text() == "kept\n" and [p.name for p in tmp_path.iterdir()] == ["live.csv"]
 
 
 def test_a_header_only_log_is_an_error(tmp_path):

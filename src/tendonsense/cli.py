@@ -60,8 +60,10 @@ class _Once(argparse._StoreAction):
 
     def __call__(self, parser, namespace, values, option_string=None):
         given = namespace.__dict__.setdefault("_given", set())
-        if self.dest in given:
-            parser.error(f"{'/'.join(self.option_strings)} given twice")
+        if self.dest in given:  # named by its visible option (not a hidden alias)
+            shown = next((a for a in parser._actions if a.dest == self.dest
+                          and a.help != argparse.SUPPRESS), self)
+            parser.error(f"{'/'.join(shown.option_strings)} given twice")
         given.add(self.dest)
         super().__call__(parser, namespace, values, option_string)
 
@@ -278,7 +280,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --readings: write the estimates to this CSV file (atomically, "
                         "when every row is done); without it, or with '-', each result row goes "
                         "to standard output as soon as it is estimated; with several logs a "
-                        "folder (made if missing), one output per log under the log's name")
+                        "folder OUTDIR/ (made if missing), one output per log under the log's name")
     _cluster_options(p, "several logs (a log per task)", "the logs and OUTDIR")
     p.add_argument("--output", dest="estimates", help=argparse.SUPPRESS)
     p.add_argument("--length-noise", type=_positive, default=1e-4, metavar="M",
@@ -881,6 +883,8 @@ def _check_analysis(args, robot):
     if out.exists() and not out.is_dir():
         raise ValueError(f"-o/--out-dir {args.out_dir}: not a folder")
     parent = next((p for p in (out, *out.parents) if p.exists()), Path("."))
+    if not parent.is_dir():
+        raise ValueError(f"-o/--out-dir {args.out_dir}: {str(parent)!r} is not a folder")
     if not os.access(parent, os.W_OK):
         raise ValueError(f"-o/--out-dir {args.out_dir}: the folder {str(parent)!r} is not "
                          f"writable")
@@ -1195,43 +1199,42 @@ def _stream(args, robot, noise) -> bool:
     from .readings import AtomicText
 
     source = "<stdin>" if args.readings == "-" else args.readings
+    count = dict(rows=0, converged=0, skipped=0)  # as rows are answered: an interrupt keeps it
 
     def skipped(s):
+        count["skipped"] += 1
         print(f"tendonsense: {source}: row {s.row} skipped: {s.error}", file=sys.stderr)
 
+    def answered(s, r):
+        count["rows"] += 1
+        count["converged"] += bool(r is not None and r.converged)
+        if viewer is not None:
+            viewer.push(r, tensions=s.tensions, forces=forces, unknowns=args.unknown,
+                        time_s=s.time, note="" if r is not None else s.error)
+
     fh = sys.stdin if args.readings == "-" else open(args.readings, newline="")
-    viewer = on_sample = None
+    viewer = None
     lines, forces = fh, _point_forces(args)
     if args.view:
         replay = args.readings != "-"
         viewer = _open_view(args, robot, f"{robot.name}: " + (
             f"replay of {args.readings}" if replay else "live readings"), pause=replay)
-
-        def push(s, r):
-            viewer.push(r, tensions=s.tensions, forces=forces, unknowns=args.unknown,
-                        time_s=s.time, note="" if r is not None else s.error)
-
-        on_sample = push
-
         if replay:
             lines = _paced(fh, viewer)
     to_file = args.estimates not in (None, "-")
     out = AtomicText(args.estimates) if to_file else sys.stdout
-    rows = good = 0
-    ended = interrupted = False  # at the input's end or an interrupt the rows so far stand
     try:
         with fh:
-            rows, good = stream_readings(robot, lines, out, args.unknown, forces, noise,
-                                         source, skipped, on_sample, args.dynamic, _walk(args))
-        if not rows:
+            stream_readings(robot, lines, out, args.unknown, forces, noise, source, skipped,
+                            answered, args.dynamic, _walk(args))
+        if not count["rows"]:
             raise ReadingsError(f"{source}: no data rows below the header")
-        ended = True
         if viewer is not None and args.readings != "-":
             print("tendonsense: the log is done; the view stays until Ctrl-C", file=sys.stderr)
             while True:
                 time.sleep(0.5)
-    except KeyboardInterrupt:
-        ended = interrupted = True
+    except KeyboardInterrupt:  # the rows answered so far stand
+        pass
     except BrokenPipeError:  # the reader went away: stop quietly
         sys.stderr.close()
         return True
@@ -1239,14 +1242,19 @@ def _stream(args, robot, noise) -> bool:
         if viewer is not None:
             viewer.close()
         if to_file:
-            if ended:
+            if count["rows"]:
                 out.commit()
             out.close()
     if to_file:
-        summary = {"samples": rows, "converged": good, "output": str(args.estimates)}
+        if not count["rows"]:
+            print(f"tendonsense: {source}: no row answered; nothing written", file=sys.stderr)
+            return True
+        summary = {"samples": count["rows"], "converged": count["converged"],
+                   "skipped": count["skipped"], "output": str(args.estimates)}
         print(json.dumps(summary) if args.json else
-              f"estimated {rows} samples: {good} converged; wrote {args.estimates}")
-    return interrupted or good == rows
+              f"estimated {count['rows']} samples: {count['converged']} converged, "
+              f"{count['skipped']} skipped; wrote {args.estimates}")
+    return count["converged"] == count["rows"]
 
 
 def _paced(lines, viewer):

@@ -72,6 +72,8 @@ def _unknowns(row: dict) -> list:
 
 def _experiment(row: dict, robot: Robot) -> Experiment:
     names = re.split(r"[\s;,+]+", row["tendon"].strip())
+    if len(set(names)) < len(names):
+        raise ValueError(f"tendon {row['tendon']!r}: a tendon named twice")
     T = _numbers(row["tension_N"], "tension_N")
     y = _numbers(row["displacement_m"], "displacement_m")
     if not (len(names) == len(T) == len(y)):
@@ -93,7 +95,7 @@ def read_experiments(path: str | Path, robot: Robot) -> list[Experiment]:
     a ValueError naming the file, the row and what is wrong."""
     try:
         with open(path, newline="") as fh:
-            reader = csv.DictReader(fh)
+            reader = csv.DictReader(fh, restval="")
             rows = list(reader)
             header = reader.fieldnames
     except OSError as exc:

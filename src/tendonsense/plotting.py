@@ -371,7 +371,10 @@ def _legend(fig, axes, tendons, markers, measured, loads):
         h.append(Line2D([], [], color=TENSION_CMAP(0.7), label="tendon (colour: tension)"))
     if any(T <= 0 for _, T, _ in tendons):
         h.append(Line2D([], [], color=SLACK, label="slack tendon"))
-    for colour, what in ((KNOWN, "known force"), (ESTIMATED, "estimated force (± 1 σ)")):
+    stuck = any(c == ESTIMATED and "stuck tendon" in label for _, _, label, c in loads)
+    estimated = "estimated force (a stuck tendon: its range)" if stuck else \
+        "estimated force (± 1 σ)"
+    for colour, what in ((KNOWN, "known force"), (ESTIMATED, estimated)):
         if any(c == colour for *_, c in loads):
             h.append(Line2D([], [], color=colour, lw=2, marker=">", label=what))
     left, bottom, right, _ = _extent(axes)

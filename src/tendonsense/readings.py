@@ -413,14 +413,20 @@ def write_text_atomic(path: str | Path, text: str):
 
 def beside(path: Path) -> tuple[int, str]:
     """A new hidden file next to ``path``, open for writing: (descriptor, name). Made with
-    the permissions of a file the user creates (0o666 less the umask), which the file keeps
-    when it is moved into place (:func:`tempfile.mkstemp` would make it private)."""
+    the permissions of the file it replaces, or of a file the user creates (0o666 less the
+    umask), which it keeps when it is moved into place (:func:`tempfile.mkstemp` would make
+    it private)."""
     for _ in range(100):
         tmp = str(path.parent / f".{path.name}.{secrets.token_hex(4)}")
         try:
-            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), tmp
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         except FileExistsError:
             continue
+        try:
+            os.fchmod(fd, path.stat().st_mode & 0o7777)
+        except (OSError, AttributeError):  # no file there yet (or no fchmod): as made
+            pass
+        return fd, tmp
     raise FileExistsError(f"{path}: no free name beside it")
 
 
