@@ -29,7 +29,7 @@ from .inputs import GravityUnknown, Noise, PointForceUnknown
 from .readings import ReadingsError
 from .robot import RobotFileError, load_robot
 from .settings import pin
-from .units import GF, newtons, newtons_range
+from .units import GF, between, newtons
 
 DESCRIPTION = """\
 Shape and external forces of a tendon-driven soft robot from its tendon readings, with a
@@ -1013,15 +1013,7 @@ def magnitude_text(u, value: float, sigma=None) -> str:
 
 def range_text(u, low: float, high: float) -> str:
     """A magnitude's range over a friction band, open where it is infinite."""
-    if isinstance(u, PointForceUnknown):
-        return newtons_range(low, high)
-    if np.isfinite(low) and np.isfinite(high):
-        return f"between {low:.4g} and {high:.4g}"
-    if np.isfinite(low):
-        return f"at least {low:.4g}"
-    if np.isfinite(high):
-        return f"at most {high:.4g}"
-    return "unbounded"
+    return between(low, high, newtons if isinstance(u, PointForceUnknown) else "{:.4g}".format)
 
 
 def _print_result(result, as_json: bool, title: str, robot, unknowns=()):

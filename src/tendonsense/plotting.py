@@ -24,7 +24,7 @@ from .kinematics import frames_fn  # noqa: E402
 from .readings import write_bytes_atomic  # noqa: E402
 from .result import Result  # noqa: E402
 from .robot import Robot  # noqa: E402
-from .units import GF, newtons, newtons_range  # noqa: E402
+from .units import GF, between, newtons  # noqa: E402
 
 SOURCES = ("length", "tension", "friction")
 COLOURS = {"length": "tab:blue", "tension": "tab:orange", "friction": "tab:green"}
@@ -263,7 +263,7 @@ def _estimate_label(e: Estimated) -> str:
     where its location was estimated, that location ± σ."""
     size = float(np.linalg.norm(e.force))
     text = (newtons(size, e.sigma) if e.band is None else
-            f"{newtons(size)} mid-band;\na stuck tendon: {newtons_range(*e.band)}")
+            f"{newtons(size)} mid-band;\na stuck tendon: {between(*e.band)}")
     if e.X_sigma is not None:
         text += f"\nat X = {e.X * 1e3:.0f} ± {e.X_sigma * 1e3:.0f} mm (1 σ)"
     return text

@@ -14,13 +14,13 @@ def newtons(value: float, sigma: float | None = None) -> str:
     return text
 
 
-def newtons_range(low: float, high: float) -> str:
-    """A force's range, open where it is infinite, e.g. ``between 0.0756 N (7.7 gF) and
-    0.492 N (50.2 gF)``."""
+def between(low: float, high: float, text=newtons) -> str:
+    """A range, open where it is infinite, its ends written by ``text`` (default a force:
+    ``between 0.0756 N (7.7 gF) and 0.492 N (50.2 gF)``)."""
     if math.isfinite(low) and math.isfinite(high):
-        return f"between {newtons(low)} and {newtons(high)}"
+        return f"between {text(low)} and {text(high)}"
     if math.isfinite(low):
-        return f"at least {newtons(low)}"
+        return f"at least {text(low)}"
     if math.isfinite(high):
-        return f"at most {newtons(high)}"
+        return f"at most {text(high)}"
     return "unbounded"
