@@ -106,6 +106,11 @@ def default_3d_forces_gf():
             for sx, sy, sz in itertools.product((-1, 1), repeat=3)]
 
 
+def _per_tendon(names, tensions) -> dict[str, float]:
+    """``tensions`` (N: one for every tendon, or one each) by tendon name."""
+    return dict(zip(names, np.broadcast_to(np.asarray(tensions, float), (len(names),)).tolist()))
+
+
 def sensitivity_3d(robot: Robot, forces_gf=None, tensions=1.5,
                    errors: Errors = Errors(), progress=None) -> list[dict]:
     """Fig. 3b: 3-D tip forces from every tendon (three in the paper), each at ``tensions``
@@ -116,7 +121,7 @@ def sensitivity_3d(robot: Robot, forces_gf=None, tensions=1.5,
     names = robot.tendon_names
     n = len(names)
     prob = problem(robot, names, [PointForceUnknown(L, tuple(e)) for e in np.eye(3)])
-    T = dict(zip(names, np.broadcast_to(np.asarray(tensions, float), (n,)).tolist()))
+    T = _per_tendon(names, tensions)
     out = []
     for k, f_gf in enumerate(forces_gf):
         F = np.asarray(f_gf) * GF
@@ -172,8 +177,8 @@ def resolution(robot: Robot, forces_gf=None, tensions=1.5,
     L = robot.rod.length
     names = robot.tendon_names
     prob = problem(robot, names, [PointForceUnknown(L, tuple(e)) for e in np.eye(3)])
-    tensions = np.broadcast_to(np.asarray(tensions, float), (len(names),))
-    T = dict(zip(names, tensions.tolist()))
+    T = _per_tendon(names, tensions)
+    tensions = np.array(list(T.values()))
     rows = []
     for k, f_gf in enumerate(forces_gf):
         F = np.asarray(f_gf) * GF

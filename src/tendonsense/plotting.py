@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import io
 from collections.abc import Sequence
-from typing import NamedTuple
 from pathlib import Path
+from typing import NamedTuple
 
 import matplotlib
 
@@ -67,6 +67,8 @@ _LABEL_BOX = dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.8)
 
 
 Load = tuple[float, Sequence[float]]
+
+
 class Estimated(NamedTuple):
     """An estimated point load: where (m), the force (N, global), its 1-σ size (N), the
     range of its size over a stuck tendon's band (N) and, for a force whose location was
@@ -96,8 +98,8 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     tension and the point loads drawn to one scale, labelled in N and gF.
 
     ``forces`` are known loads ``[(X, f N global)]``, ``estimated`` estimated ones
-    (:class:`Estimated`, or tuples of its fields); ``measured_markers`` ({name: xyz m}) are drawn as
-    crosses. ``title`` and ``given`` are the two title lines. With ``failed`` (a reason) or a
+    (:class:`Estimated`, or tuples of its fields); ``measured_markers`` ({name: xyz m}) are
+    drawn as crosses. ``title`` and ``given`` are the two title lines. With ``failed`` (a reason) or a
     result that did not converge, the views are stamped NOT CONVERGED."""
     L = robot.rod.length
     loads = ([(X, np.asarray(f, float), newtons(float(np.linalg.norm(f))), KNOWN)

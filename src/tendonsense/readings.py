@@ -257,10 +257,9 @@ def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
             text = (row.get(col) or "").strip()
             if not text:
                 if required:
-                    raise SnapshotError(f"{path}: snapshot row {i}: {col} is empty (a value "
-                                        f"is needed: a slack tendon's tension is 0)"
-                                        if col.startswith("tension_") else
-                                        f"{path}: snapshot row {i}: {col} is empty")
+                    why = (" (a value is needed: a slack tendon's tension is 0)"
+                           if col.startswith("tension_") else "")
+                    raise SnapshotError(f"{path}: snapshot row {i}: {col} is empty{why}")
                 return None
             v = _number(text)
             if not math.isfinite(v):
@@ -388,19 +387,9 @@ def write_csv_atomic(path: str | Path, header, rows):
 
 def write_bytes_atomic(path: str | Path, data: bytes):
     """:func:`write_text_atomic` for bytes (a figure)."""
-    path = Path(path)
-    try:
-        fd, tmp = beside(path)
-    except OSError as exc:
-        raise OSError(f"{path}: cannot write ({exc.strerror})") from None
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with AtomicText(path) as out:
+        out.buffer.write(data)
+        out.commit()
 
 
 def write_text_atomic(path: str | Path, text: str):
@@ -431,7 +420,7 @@ def beside(path: Path) -> tuple[int, str]:
 
 
 class AtomicText(io.TextIOWrapper):
-    """A text file (UTF-8) written next to ``path`` and moved into place by :meth:`commit`;
+    """A text file (UTF-8; bytes through its ``buffer``) written next to ``path`` and moved into place by :meth:`commit`;
     closed without a commit, it leaves nothing. Errors name ``path``, not the hidden file."""
 
     def __init__(self, path: str | Path):
