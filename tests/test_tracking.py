@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from tendonsense.estimation import PointForceUnknown, estimate_problem, problem
+from tendonsense.fastpath import EXACT_EVERY
 from tendonsense.forward import solve
 from tendonsense.robot import Numerics
 from tendonsense.tracking import estimate_batch, estimate_series
@@ -23,15 +24,20 @@ def log(prototype):
 
 
 def test_series_matches_plain_path(log):
+    """Every row: the magnitudes and markers to the solver's tolerance; the 1-σ band exact
+    where the scan formed the exact inverse Jacobian (the first of every EXACT_EVERY samples
+    of a chunk) and within 10 % between (Broyden's inverse: up to 7.7 % on this log, whose
+    samples are far apart)."""
     prob, F, disp, ten = log
     fast = estimate_series(prob, disp, ten, chunk=16)
-    for k in range(0, len(F), 4):
+    for k in range(len(F)):
         plain = estimate_problem(prob, disp[k], ten[k])
         assert fast[k].converged and plain.converged
         np.testing.assert_allclose(fast[k].magnitudes, plain.magnitudes, rtol=1e-8)
         for m, p in plain.markers.items():
             np.testing.assert_allclose(fast[k].markers[m], p, rtol=0, atol=1e-10)
-        np.testing.assert_allclose(fast[k].sigma, plain.sigma, rtol=0.03)
+        exact = (k % 16) % EXACT_EVERY == 0
+        np.testing.assert_allclose(fast[k].sigma, plain.sigma, rtol=1e-3 if exact else 0.1)
         assert fast[k].magnitudes[0] == pytest.approx(F[k], rel=1e-8)
 
 
@@ -144,7 +150,7 @@ def test_a_log_scan_stops_at_a_failure_and_skips_padding(log):
     T, Y = map(np.array, zip(*(prob.readings(d, t) for d, t in zip(disp[:8], ten[:8]))))
     T[3:5, 0] = 2000.0  # a unit slip: no equilibrium within the model's strain range
     model, meas = prob.model, list(prob.measured)
-    track = tracker(model.structure, prob.measured, prob.n_z, (0,), 4, until_failure=True)
+    track = tracker(model.structure, prob.measured, prob.n_z, (0,), until_failure=True)
 
     def scan(rows, count, failing, x0):
         tr = track(x0, stacked_drives(prob, T[rows], Y[rows][:, meas]), prob.unknowns,

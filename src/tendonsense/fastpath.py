@@ -58,6 +58,10 @@ class Carry(NamedTuple):
 
 #: work budget of one sample on the fast path: residual evaluations and exact Jacobians
 MAX_EVALUATIONS, MAX_JACOBIANS = 60, 6
+#: one sample in every ``EXACT_EVERY`` (the first of a scan included) forms the exact inverse
+#: Jacobian at its solution; the others carry Broyden's, so that their sensitivity (and 1-σ
+#: band) is within a few per cent of the exact one (the speed page gives the figures)
+EXACT_EVERY = 4
 #: Bates–Watts relative offsets: a least-squares sample is at its minimum below the first; a
 #: step onto such a point that lowers the merit by less than Armijo asks is taken below the
 #: second (the plain path's :data:`~tendonsense.estimation.RELATIVE_OFFSET`)
@@ -65,7 +69,8 @@ OFFSET, RELATIVE_OFFSET = 1e-6, 1e-3
 
 
 def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
-                tension_columns: tuple[int, ...], exact_every: int, step_tol: float = 1e-8):
+                tension_columns: tuple[int, ...], exact_every: int = EXACT_EVERY,
+                step_tol: float = 1e-8):
     """``init(x0, d0, p0, unknowns, values) -> Carry`` and
     ``step(carry, d, p, unknowns, values, skip=False) -> (Carry, Track row)`` of the tracker
     (pure; ``skip``: the sample is not attempted, 0 iterations, the carry kept):
@@ -308,8 +313,8 @@ def _until_failure(sample, carry, xs, count, failing):
 
 @lru_cache(maxsize=CACHE_SIZE)
 def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
-            tension_columns: tuple[int, ...], exact_every: int = 1, step_tol: float = 1e-8,
-            until_failure: bool = False):
+            tension_columns: tuple[int, ...], exact_every: int = EXACT_EVERY,
+            step_tol: float = 1e-8, until_failure: bool = False):
     """Compiled ``track(x0, drives, unknowns, values, varied) -> Track`` for a square system
     (``len(measured) == n_z``) or least squares (more measured tendons); ``drives`` is a
     :class:`Drive` and ``varied`` a dict of values by name
@@ -341,7 +346,7 @@ def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
 
 @lru_cache(maxsize=CACHE_SIZE)
 def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
-             tension_columns: tuple[int, ...], exact_every: int = 1):
+             tension_columns: tuple[int, ...], exact_every: int = EXACT_EVERY):
     """Compiled ``follow(x0, drives, unknowns, values, given, band, count, failing) -> (Track,
     states, bands)``, stopping early as :func:`tracker`'s ``until_failure``:
     :func:`tracker` with every tendon's friction following its history
@@ -403,7 +408,7 @@ def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
 
 @lru_cache(maxsize=CACHE_SIZE)
 def stepper(structure: Structure, measured: tuple[int, ...], n_z: int,
-            tension_columns: tuple[int, ...], exact_every: int = 1):
+            tension_columns: tuple[int, ...], exact_every: int = EXACT_EVERY):
     """The tracker one sample at a time: compiled ``init(x0, d0, p0, unknowns, values)`` and
     ``step(carry, d, p, unknowns, values) -> (carry, row)``, the row and the turning angles of
     its shape (a friction history's) packed into one vector (one transfer to the host;

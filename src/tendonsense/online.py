@@ -76,8 +76,7 @@ class OnlineEstimator:
         model = prob.model
         self._square = len(prob.measured) == prob.n_z
         self._tcols = tuple(range(model.n_tendons))
-        self._init, self._step = stepper(model.structure, prob.measured, prob.n_z,
-                                         self._tcols, 4)
+        self._init, self._step = stepper(model.structure, prob.measured, prob.n_z, self._tcols)
         # on the device once: a numpy leaf would be copied in at every call
         self._values, self._unknowns = jax.device_put((model.values, prob.unknowns))
         self._carry = None

@@ -40,8 +40,10 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
     problems, Gauss–Newton SQP for least squares); a sample it cannot converge is solved again
     on its own from the straight rod (load continuation, a bounded budget once an earlier
     sample has converged) and the scan goes on again after it, from that solution; a bad
-    reading (non-finite, negative tension, a tendon pulled in
-    beyond its length) is marked with the reason. ``progress(done, total)`` is called per
+    reading (non-finite, negative tension, a tendon pulled in beyond its length) is marked
+    with the reason. A square problem's 1-σ band is exact on the first sample of every
+    :data:`~tendonsense.fastpath.EXACT_EVERY` and within a few per cent between (the
+    quasi-Newton inverse). ``progress(done, total)`` is called per
     chunk (:func:`series_chunks` hands over each chunk's estimates as it finishes)."""
     n = len(displacements)
     out: list[SampleEstimate | None] = [None] * n
@@ -101,9 +103,9 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
             out[k] = SampleEstimate.failed(prob, f"bad value: {exc}")
     tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.any(T != 0, axis=0)))))
     if history is None:
-        track = tracker(model.structure, prob.measured, prob.n_z, tcols, 4, until_failure=True)
+        track = tracker(model.structure, prob.measured, prob.n_z, tcols, until_failure=True)
     else:
-        follow = follower(model.structure, prob.measured, prob.n_z, tcols, 4)
+        follow = follower(model.structure, prob.measured, prob.n_z, tcols)
         given = np.full((n, len(robot.tendons)), np.nan) if given is None else given
         stuck = np.zeros((n, len(robot.tendons)), bool) if stuck is None else stuck
         mu = np.asarray(model.values.friction, float)
@@ -273,7 +275,7 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     g = np.broadcast_to(np.asarray(robot.gravity, float), (n, 3))
     unknowns = Unknowns.none(n_t, X.shape[1])
     tcols = tuple(int(j) for j in np.flatnonzero(np.any(T != 0, axis=0)))
-    track = tracker(structure, (), 0, tcols, 4)
+    track = tracker(structure, (), 0, tcols)
     features = np.concatenate([T, X, F.reshape(n, -1), *(v.reshape(n, -1)
                                                           for v in varied.values())], axis=1)
     runs = [r for r in np.array_split(principal_order(features), max(1, workers)) if r.size]
