@@ -347,6 +347,20 @@ def test_a_sweep_writes_one_row_per_set(where, client, prototype, tmp_path, caps
                                one.markers["tip"], rtol=0, atol=1e-9)
 
 
+def test_a_set_with_no_solution_is_marked_with_why(tmp_path, capsys):
+    """2000 N (a unit slip) has no solution in the model: its row says where the solver
+    stopped, the others are solved and say nothing; exit status 3."""
+    (tmp_path / "sets.csv").write_text("id,tension_t1\na,2.0\nb,2000\nc,3.0\n")
+    code = cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", tmp_path / "r.csv",
+                     "--quiet"])
+    assert code == 3 and "2 converged" in capsys.readouterr().out
+    rows = list(csv.DictReader(open(tmp_path / "r.csv")))
+    assert [(r["id"], r["converged"]) for r in rows] == [("a", "true"), ("b", "false"),
+                                                         ("c", "true")]
+    assert rows[1]["solver_note"].startswith("the solver stopped after")
+    assert rows[1]["marker_tip_x"] == "" and rows[0]["solver_note"] == rows[2]["solver_note"] == ""
+
+
 def test_a_bad_parameter_set_is_named_and_nothing_written(tmp_path, capsys):
     (tmp_path / "sets.csv").write_text("tension_t1,young_modulus\n2.0,1e6\n2.0,-5\n")
     code = cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", tmp_path / "r.csv"])

@@ -226,7 +226,8 @@ def solve_batch(client, robot: Robot, tensions, point_forces: Sequence = (),
         back([p.q for p in parts]),
         {m: back([p.markers[m] for p in parts]) for m in robot.marker_names},
         {t: back([p.displacements[t] for p in parts]) for t in robot.tendon_names},
-        back([p.converged for p in parts]), back([p.iterations for p in parts]))
+        back([p.converged for p in parts]), back([p.iterations for p in parts]),
+        back([p.notes for p in parts]))
 
 
 def estimate_chunk(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],

@@ -33,6 +33,12 @@ def model_for(robot: Robot) -> Model:
     return Model.build(robot)
 
 
+def stopped(res: NewtonResult, tolerance: float) -> str:
+    """Why the solver's ``res`` is no solution: where it stopped."""
+    return (f"the solver stopped after {int(res.iterations)} iterations at relative residual "
+            f"{float(res.residual):.1e} (tolerance {tolerance:.0e})")
+
+
 def make_result(model: Model, x, tensions, res: NewtonResult, why: str | None = None,
                 **extra) -> Result:
     """The result of a solve at ``x``; not converged, it says why: ``why`` if given, else the
@@ -41,9 +47,7 @@ def make_result(model: Model, x, tensions, res: NewtonResult, why: str | None = 
     q = np.asarray(x[: model.nq])
     markers, backbone, y, fine = shape_outputs(model.structure, model.values, q)
     if not (bool(res.converged) and fine):
-        why = (INADMISSIBLE if not fine else why or
-               f"the solver stopped after {int(res.iterations)} iterations at relative residual "
-               f"{float(res.residual):.1e} (tolerance {robot.numerics.tolerance:.0e})")
+        why = INADMISSIBLE if not fine else why or stopped(res, robot.numerics.tolerance)
         note = extra.get("extra", {}).get("note")
         extra["extra"] = {**extra.get("extra", {}),
                           "note": why if not note or why in note else f"{why}; {note}"}

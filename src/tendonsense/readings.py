@@ -541,9 +541,11 @@ def read_parameter_sets(path: str | Path, robot: Robot) -> ParameterSets:
 def sweep_rows(robot: Robot, sets: ParameterSets, result) -> tuple[list[str], list[list]]:
     """Header and rows of a sweep's RESULTS.csv: each set's own cells, then its markers
     (``marker_<name>_x/_y/_z``, m), its tendons' length changes (``displacement_<tendon>``,
-    m) and ``converged`` (a :class:`~tendonsense.tracking.BatchResult` ``result``)."""
+    m), ``converged`` and ``solver_note``, why a set is no solution (a
+    :class:`~tendonsense.tracking.BatchResult` ``result``)."""
     header = (sets.header + [f"marker_{m}_{a}" for m in robot.marker_names for a in AXES]
-              + [f"displacement_{t}" for t in robot.tendon_names] + ["converged"])
+              + [f"displacement_{t}" for t in robot.tendon_names]
+              + ["converged", "solver_note"])
     rows = []
     for k, cells in enumerate(sets.rows):
         ok = bool(result.converged[k])
@@ -551,7 +553,7 @@ def sweep_rows(robot: Robot, sets: ParameterSets, result) -> tuple[list[str], li
                for v in result.markers[m][k]]
         out += [repr(float(result.displacements[t][k])) if ok else ""
                 for t in robot.tendon_names]
-        rows.append(cells + out + ["true" if ok else "false"])
+        rows.append(cells + out + ["true" if ok else "false", result.notes[k]])
     return header, rows
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from .estimation import estimate_problem
 from .fastpath import (MAX_EVALUATIONS, MAX_JACOBIANS, Carry, Track,  # noqa: F401 (API)
                        follower, stacked_drives, stepper, tracker, unpack_row)
-from .forward import model_for
+from .forward import INADMISSIBLE, model_for, stopped
 from .inputs import Noise, tendon_vector
 from .model import VALUE_NAMES
 from .online import RESCUE_BUDGET, OnlineEstimator
@@ -244,6 +244,7 @@ class BatchResult:
     displacements: dict[str, np.ndarray]  # tendon -> (N,), eq. 9
     converged: np.ndarray  # (N,) bool
     iterations: np.ndarray  # (N,) residual evaluations
+    notes: np.ndarray  # (N,) str: why a sample is no solution ('' where it converged)
 
 
 def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
@@ -281,6 +282,7 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     runs = [r for r in np.array_split(principal_order(features), max(1, workers)) if r.size]
     q, mk = np.zeros((n, structure.nq)), np.zeros((n, len(robot.markers), 3))
     y, conv, its = np.zeros((n, n_t)), np.zeros(n, bool), np.zeros(n, int)
+    notes = np.full(n, "", object)
 
     def drive(rows):
         return Drive(jnp.asarray(T[rows]), jnp.asarray(F[rows]), jnp.asarray(X[rows]),
@@ -304,6 +306,9 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
                 markers, _, lengths, fine = shape_outputs(structure, v, res.x)
                 q[k], mk[k], y[k] = np.asarray(res.x), markers, lengths
                 conv[k], its[k] = bool(res.converged) and bool(fine), int(res.evaluations)
+                if not conv[k]:
+                    notes[k] = (INADMISSIBLE if res.converged else
+                                stopped(res, robot.numerics.tolerance))
             good = np.flatnonzero(conv[idx])
             if good.size:
                 x0 = q[idx[good[-1]]]
@@ -311,7 +316,8 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     with ThreadPoolExecutor(len(runs)) as pool:
         list(pool.map(solve_run, runs))
     return BatchResult(q, {m: mk[:, i] for i, m in enumerate(robot.marker_names)},
-                       {t: y[:, j] for j, t in enumerate(robot.tendon_names)}, conv, its)
+                       {t: y[:, j] for j, t in enumerate(robot.tendon_names)}, conv, its,
+                       notes)
 
 
 def batch_inputs(robot: Robot, base, tensions, point_forces, values):
