@@ -362,3 +362,15 @@ def test_a_fitted_robot_file_keeps_its_comments_and_says_how_it_was_made(tmp_pat
     assert "snapshots.csv (" in text and "marker RMSE" in text
     comments = [line for line in guess.read_text().splitlines() if line.startswith("#")]
     assert comments and all(c in text for c in comments)
+
+
+def test_a_skipped_row_keeps_its_time(prototype):
+    """A bad row is marked with its reason and keeps its time stamp (the output's `time` is
+    copied from the input); a bad time itself is not kept."""
+    from tendonsense.readings import output_row, parse_header, parse_row
+    columns = parse_header(["time", "tension_t1", "tension_t2", "tension_t3",
+                            "displacement_t1"], prototype, "log.csv")
+    s = parse_row(50, ["1.0", "abc", "0", "0", "-0.003"], columns, prototype)
+    assert s.error and s.time == 1.0
+    assert output_row(prototype, s, None, 1, False)[:2] == [50, "1.0"]
+    assert parse_row(51, ["soon", "2.0", "0", "0", "-0.003"], columns, prototype).time is None

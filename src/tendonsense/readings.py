@@ -148,8 +148,10 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
             if error:
                 break
             values[col] = v
-    if error:
-        return Sample(i, None, {}, {}, {}, error)
+    if error:  # its time stamp kept where it can be read
+        t = _number(raw[header.index("time")]) if "time" in header and len(raw) == len(
+            header) else math.nan
+        return Sample(i, t if math.isfinite(t) else None, {}, {}, {}, error)
     return Sample(
         i, values.get("time"),
         {n: values[f"tension_{n}"] for n in robot.tendon_names if f"tension_{n}" in values},
