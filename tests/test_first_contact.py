@@ -374,3 +374,36 @@ def test_a_skipped_row_keeps_its_time(prototype):
     assert s.error and s.time == 1.0
     assert output_row(prototype, s, None, 1, False)[:2] == [50, "1.0"]
     assert parse_row(51, ["soon", "2.0", "0", "0", "-0.003"], columns, prototype).time is None
+
+
+def test_a_length_column_in_millimetres_is_refused_before_jax(tmp_path):
+    """Lengths typed in mm: the log is refused up front in one line (its rows would each be
+    skipped, and the few under the tendon's length estimated as if in metres)."""
+    rows = (ROOT / "examples" / "tutorial" / "readings.csv").read_text().splitlines()
+    header = rows[0].split(",")
+    k = header.index("displacement_t1")
+    mm = [rows[0]] + [",".join(c if j != k else repr(1000 * float(c))
+                               for j, c in enumerate(r.split(","))) for r in rows[1:]]
+    path = tmp_path / "mm.csv"
+    path.write_text("\n".join(mm) + "\n")
+    rc, err, jax_loaded = refused_before_jax("estimate", PROTOTYPE, "--readings", path,
+                                             "--unknown", "0.25,0,0,-1", "-o", tmp_path / "e.csv")
+    assert rc == 1 and not jax_loaded and len(err.strip().splitlines()) == 1, err
+    assert "displacement_t1" in err and "metres" in err and not (tmp_path / "e.csv").exists()
+
+
+def test_a_file_log_names_its_first_skipped_rows_and_counts_the_rest(tmp_path):
+    rows = (ROOT / "examples" / "tutorial" / "readings.csv").read_text().splitlines()[:41]
+    k = rows[0].split(",").index("tension_t1")
+    bad = [rows[0]] + [",".join(c if j != k or i > 25 else "-1"
+                                for j, c in enumerate(r.split(",")))
+                       for i, r in enumerate(rows[1:], start=1)]
+    path = tmp_path / "bad.csv"
+    path.write_text("\n".join(bad) + "\n")
+    p = cli("estimate", PROTOTYPE, "--readings", path, "--unknown", "0.25,0,0,-1",
+            "-o", tmp_path / "e.csv")
+    err = p.stderr.splitlines()
+    assert p.returncode == 3 and len(err) == 22, p.stderr
+    assert "row 20 skipped" in err[19] and "5 more rows skipped" in err[20]
+    assert "not every solve converged" in err[21]
+    assert "40 samples: 15 converged, 25 skipped" in p.stdout

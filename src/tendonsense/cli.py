@@ -1102,14 +1102,15 @@ def _log(args, robot) -> bool:
     to_file = args.estimates not in (None, "-")
     out = rd.AtomicText(args.estimates) if to_file else sys.stdout
     prog = _Progress(args, "estimate")
-    good = 0
+    good = shown = 0
     try:
         writer = csv.writer(out)
         writer.writerow(rd.output_header(robot, len(unknowns), with_shape, where, follow))
         for first, estimates in estimate_chunks(robot, measured, samples, unknowns, forces,
                                                 noise, args.dynamic, _walk(args)):
             for s, r in zip(samples[first:], estimates):
-                if r is None:
+                if r is None and shown < rd.SKIPPED_SHOWN:  # the rest counted at the end
+                    shown += 1
                     print(f"tendonsense: {args.readings}: row {s.row} skipped: {s.error}",
                           file=sys.stderr)
                 writer.writerow(rd.output_row(robot, s, r, len(unknowns), with_shape, where,
@@ -1126,14 +1127,18 @@ def _log(args, robot) -> bool:
         prog.close()
         if to_file:
             out.close()
+    skipped = sum(bool(s.error) for s in samples)
+    if skipped > shown:
+        print(f"tendonsense: {args.readings}: {skipped - shown} more rows skipped (the output's "
+              f"note column says why)", file=sys.stderr)
     if to_file:
-        summary = {"samples": len(samples), "converged": good,
-                   "skipped": sum(bool(s.error) for s in samples), "output": str(args.estimates)}
+        summary = {"samples": len(samples), "converged": good, "skipped": skipped,
+                   "output": str(args.estimates)}
         if args.json:
             print(json.dumps(summary))
         else:
-            print(f"estimated {len(samples)} samples: {good} converged, {summary['skipped']} "
-                  f"skipped; wrote {args.estimates}")
+            print(f"estimated {len(samples)} samples: {good} converged, {skipped} skipped; "
+                  f"wrote {args.estimates}")
     return good == len(samples)
 
 
@@ -1165,7 +1170,7 @@ def _logs(args, robot) -> int:
             print(f"tendonsense: {s.log}: row {row} skipped: {why}", file=sys.stderr)
         if s.skipped > len(s.skipped_rows):
             print(f"tendonsense: {s.log}: {s.skipped - len(s.skipped_rows)} more rows "
-                  f"skipped", file=sys.stderr)
+                  f"skipped (the output's note column says why)", file=sys.stderr)
     total = {k: sum(getattr(s, k) for s in done) for k in ("samples", "converged", "skipped")}
     if args.json:
         print(json.dumps({"logs": [s.to_json() for s in done], **total,

@@ -168,11 +168,28 @@ def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sampl
     if not rows:
         raise ReadingsError(f"{path}: empty file, expected a header row")
     columns = parse_header(rows[0], robot, path)
+    _check_units(path, columns, robot, rows[1:])
     samples = [parse_row(i, raw, columns, robot) for i, raw in enumerate(rows[1:], start=1)
                if any(c.strip() for c in raw)]
     if not samples:
         raise ReadingsError(f"{path}: no data rows below the header")
     return columns.measured, samples
+
+
+def _check_units(path, columns: Columns, robot: Robot, rows):
+    """A length column most of whose rows change the tendon by more than its whole length is
+    in the wrong unit: the log is refused (its rows would each be skipped, or worse, the few
+    that pass estimated)."""
+    for name in columns.measured:
+        k = columns.header.index(f"displacement_{name}")
+        rest = columns.rest[robot.tendon_names.index(name)]
+        v = np.array([_number(r[k]) for r in rows if len(r) == len(columns.header)])
+        v = v[np.isfinite(v)]
+        over = int(np.sum(np.abs(v) >= rest))
+        if over >= 3 and over > v.size / 2:
+            raise ReadingsError(
+                f"{path}: column displacement_{name}: {over} of {v.size} rows change the "
+                f"tendon by more than its whole length ({rest:.3g} m): lengths are in metres")
 
 
 def has_time(path: str | Path) -> bool:
