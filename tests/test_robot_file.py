@@ -28,6 +28,9 @@ def bad(tmp_path, old, new):
 @pytest.mark.parametrize("old,new,expect", [
     ("length = 0.25", "length = -0.25", "rod.length"),
     ("length = 0.25", "length = nan", "finite"),
+    ("length = 0.25", "length = 250", "lengths are in metres"),  # mm typed
+    ("radius = [0.0125, 0.005]", "radius = [12.5, 5]", "lengths are in metres"),
+    ("radius = [0.0125, 0.005]", "radius = [0.0125, -0.005]", "got -0.005"),
     ("young_modulus = 1.0e6", "young_modulus = 'soft'", "rod.young_modulus"),
     ("density = 1340.0", "density = 1340.0\ncolour = 'red'", "unknown key"),
     ("disks = 9", "disks = [0.0, 0.1, 0.05, 0.25]", "strictly increasing"),

@@ -21,6 +21,8 @@ from .rod import Rod
 
 #: a guide disk may hold its tendon at most this many local rod radii from the centre line
 REACHABLE_RADIUS_FACTOR = 2.0
+#: the longest rod a robot file may describe, m (a longer one is a length in millimetres)
+MAX_LENGTH = 10.0
 
 
 class RobotFileError(ValueError):
@@ -347,7 +349,14 @@ def _parse_rod(r: _Reader) -> Rod:
         rb, rt = r.vector("radius", 2)
         knots = [(0.0, rb), (L, rt)]
     if any(rr <= 0 for _, rr in knots):
-        r.fail("radius", "every radius must be > 0")
+        bad = next(rr for _, rr in knots if rr <= 0)
+        r.fail("radius", f"every radius must be > 0, got {bad:g}")
+    if L > MAX_LENGTH:
+        r.fail("length", f"{L:g} m is longer than any rod this models ({MAX_LENGTH:g} m; "
+                         f"lengths are in metres)")
+    if max(rr for _, rr in knots) > L / 2:
+        r.fail("radius", f"{max(rr for _, rr in knots):g} m is more than half the rod's length "
+                         f"({L:g} m): the model is a slender rod (lengths are in metres)")
     disk_radius = r.number("disk_radius", low=0.0, low_open=True) if r.has("disk_radius") else None
     widest = max(rr for _, rr in knots)
     if disk_radius is not None and disk_radius < widest:
