@@ -564,13 +564,20 @@ AXIS_COLOURS = {"x": "tab:red", "y": "tab:purple", "z": "tab:brown"}
 
 def simulation(sim, path, title: str = "simulated motion", given: str = ""):
     """A simulated motion over time: the tensions (N; solid pulled in, dotted stuck, dashed
-    paid out), the tendon length changes (mm; a tendon whose curve repeats an earlier one's
-    drawn dashed over it) and the last marker's position relative to its start (mm);
+    paid out) and the tendon length changes (mm), a tendon whose curve repeats an earlier
+    one's drawn dashed over it, and the last marker's position relative to its start (mm);
     samples that did not converge shaded. ``given`` is a second title line."""
     t = sim.time
     fig, axes = plt.subplots(3, 1, figsize=(7.5, 7), sharex=True)
+    drawn = []
     for n, T in sim.tensions.items():
         s = sim.friction_state[n]
+        again = next((m for m, U, r in drawn if np.array_equal(T, U) and np.array_equal(s, r)),
+                     None)
+        drawn.append((n, T, s))
+        if again:  # drawn over the earlier one, its gaps showing it
+            axes[0].plot(t, T, linestyle=(0, (4, 4)), label=f"{n} (as {again})")
+            continue
         phases = [(s >= 1 - EDGE, "-", n), (np.abs(s) < 1 - EDGE, ":", f"{n} stuck"),
                   (s <= -1 + EDGE, "--", f"{n} paid out")]
         color = None
