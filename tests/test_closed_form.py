@@ -16,7 +16,7 @@ def test_cantilever_tip_load_matches_euler_bernoulli():
     I = np.pi * r**4 / 4
     expected = F * L**3 / (3 * E * I)
     deflection = -res.markers["tip"][2]
-    assert deflection == pytest.approx(expected, rel=0.01)
+    assert deflection == pytest.approx(expected, rel=1e-4)  # -7.2e-6 (2026-12-05)
 
 
 def test_constant_offset_tendon_bends_rod_into_arc():
@@ -34,8 +34,10 @@ def test_constant_offset_tendon_bends_rod_into_arc():
     radius = np.sqrt(c + cx**2 + cz**2)
     off_circle = np.abs(np.hypot(pts[:, 0] - cx, pts[:, 1] - cz) - radius).max()
     kappa = T * d / (E * np.pi * r**4 / 4)
-    assert 1 / radius == pytest.approx(kappa, rel=0.01)
-    assert off_circle < 1e-3 * radius
+    # 0.18 %: the tension shortens the rod by T / (E A) = 0.16 %, which the arc's formula
+    # leaves out (2026-12-05)
+    assert 1 / radius == pytest.approx(kappa, rel=3e-3)
+    assert off_circle < 1e-8 * radius  # 8e-11 (2026-12-05)
     assert res.markers == {}
 
 

@@ -102,7 +102,7 @@ def test_elements_basis_follows_the_strain_jumps_at_the_disks(prototype, element
         round_trip.append(abs(est.magnitudes[0] / np.linalg.norm(f) - 1))
         plain = solve(prototype, T, [(X, tuple(f))])
         global_misfit.append(max(abs(plain.displacements[k] - v) for k, v in lengths.items()))
-    assert np.median(round_trip) < 3e-3
+    assert max(round_trip) < 3e-3, round_trip  # 0.2 %, 0.03 %, 0.01 % (2026-12-05)
     assert min(global_misfit) > 2e-5  # the same check fails the global basis
 
 
@@ -119,5 +119,6 @@ def test_location_of_a_force_between_the_disks(elements, element_references):
         assert est.converged, X
         X_err.append(abs(est.extra["locations"][0] - X))
         mag_err.append(abs(est.magnitudes[0] / np.linalg.norm(f) - 1))
-    assert np.median(X_err) < 0.010, X_err
-    assert np.median(mag_err) < 0.05, mag_err
+    # each case: 0.40, 0.37, 0.11 mm and 1.4 %, 0.65 %, 0.18 % (2026-12-05)
+    assert max(X_err) < 1e-3, X_err
+    assert max(mag_err) < 0.02, mag_err

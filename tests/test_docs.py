@@ -60,7 +60,8 @@ def test_shell_commands_parse(page):
     parser = build_parser()
     for command in shell_commands(page):
         args = parser.parse_args(shlex.split(command)[1:])
-        for name in ("robot", "readings", "snapshots", "csv"):
+        for name in ("robot", "robot_option", "readings", "snapshots", "csv", "sets",
+                     "tensions"):
             values = getattr(args, name, None)
             for value in values if isinstance(values, list) else [values]:
                 if value and value != "-" and Path(value).name not in WRITTEN:

@@ -27,13 +27,14 @@ def cli(*args, cwd=None, stdin=None):
                           capture_output=True, text=True, timeout=600, cwd=cwd, input=stdin)
 
 
-def refused_before_jax(*args) -> tuple[int, str, bool]:
-    """(exit status, stderr, whether JAX was imported) of the CLI in a fresh interpreter."""
+def refused_before_jax(*args, cwd=None) -> tuple[int, str, bool]:
+    """(exit status, stderr, whether JAX was imported) of the CLI in a fresh interpreter, run
+    in ``cwd``."""
     code = ("import sys, contextlib, io\nfrom tendonsense.cli import main\nerr = io.StringIO()\n"
             "with contextlib.redirect_stderr(err):\n    rc = main(sys.argv[1:])\n"
             "print(rc, 'jax' in sys.modules)\nprint(err.getvalue(), end='')\n")
     p = subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True,
-                       text=True, timeout=120)
+                       text=True, timeout=120, cwd=cwd)
     assert p.stderr == "", p.stderr
     first, *err = p.stdout.splitlines()
     rc, jax_loaded = first.split()
@@ -283,7 +284,7 @@ def test_a_header_only_log_is_an_error(tmp_path):
       "0.2,0,0,-2"), 1, "unknowns 1 and 2: one force"),
 ])
 def test_a_slip_is_refused_in_one_line_before_jax_starts(tmp_path, args, status, words):
-    rc, err, jax_loaded = refused_before_jax(*args)
+    rc, err, jax_loaded = refused_before_jax(*args, cwd=tmp_path)  # relative outputs land here
     assert rc == status, err
     assert words in err
     assert len(err.strip().splitlines()) == 1

@@ -138,7 +138,8 @@ except ValueError as exc:
 """
 
 
-@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="Linux only")
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity")
+                    or len(os.sched_getaffinity(0)) < 2, reason="Linux, 2 cores or more")
 def test_pin_keeps_every_thread_on_the_core():
     """A live estimator pinned to one core: XLA's pool threads move too (the calling thread
     alone is what ``os.sched_setaffinity(0, …)`` moves); while a program compiles, every
@@ -175,7 +176,8 @@ def test_blas_runs_on_the_callers_thread_unless_told():
     assert int(runs[1][1]) > int(runs[0][1]) and int(runs[2][1]) > int(runs[0][1])
 
 
-@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="Linux only")
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity")
+                    or len(os.sched_getaffinity(0)) < 2, reason="Linux, 2 cores or more")
 def test_cli_stream_pinned_to_a_core(readings):
     """``--cpu CORE``: the live stream's every thread (XLA's included) runs on that core, the
     answers are the same; a core the machine lacks, or --cpu on a file log, is refused."""

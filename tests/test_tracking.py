@@ -26,8 +26,8 @@ def log(prototype):
 def test_series_matches_plain_path(log):
     """Every row: the magnitudes and markers to the solver's tolerance; the 1-σ band exact
     where the scan formed the exact inverse Jacobian (the first of every EXACT_EVERY samples
-    of a chunk) and within 10 % between (Broyden's inverse: up to 7.7 % on this log, whose
-    samples are far apart)."""
+    of a chunk; 2e-11 measured) and within 10 % between (Broyden's inverse: up to 7.7 % on
+    this log, whose samples are far apart)."""
     prob, F, disp, ten = log
     fast = estimate_series(prob, disp, ten, chunk=16)
     for k in range(len(F)):
@@ -37,7 +37,7 @@ def test_series_matches_plain_path(log):
         for m, p in plain.markers.items():
             np.testing.assert_allclose(fast[k].markers[m], p, rtol=0, atol=1e-10)
         exact = (k % 16) % EXACT_EVERY == 0
-        np.testing.assert_allclose(fast[k].sigma, plain.sigma, rtol=1e-3 if exact else 0.1)
+        np.testing.assert_allclose(fast[k].sigma, plain.sigma, rtol=1e-8 if exact else 0.1)
         assert fast[k].magnitudes[0] == pytest.approx(F[k], rel=1e-8)
 
 
@@ -90,17 +90,18 @@ def _noisy_three_tendons(prototype, T, f, seed):
 
 def test_least_squares_fast_path_matches_plain_path_on_noisy_readings(prototype):
     """Three tendons read, one unknown (eq. 17 least squares) with length noise: the compiled
-    Gauss–Newton SQP series finds the same minimum and band as the plain path."""
+    Gauss–Newton SQP series finds the same minimum and band as the plain path, on every row
+    (its exact Jacobian on every sample: 4e-8 measured)."""
     n = 12
     T = np.tile([1.0, 0.5, 0.7], (n, 1)) * np.linspace(1, 2, n)[:, None]
     prob, disp, ten = _noisy_three_tendons(prototype, T, np.linspace(0.1, 0.3, n), 5)
     fast = estimate_series(prob, disp, ten, chunk=8)
-    for k in range(0, n, 3):
+    for k in range(n):
         plain = estimate_problem(prob, disp[k], ten[k])
         assert fast[k].converged and plain.converged
         assert plain.extra["length_misfit"] > 1e-5  # really inconsistent
         np.testing.assert_allclose(fast[k].magnitudes, plain.magnitudes, rtol=1e-6)
-        np.testing.assert_allclose(fast[k].sigma, plain.sigma, rtol=1e-3)
+        np.testing.assert_allclose(fast[k].sigma, plain.sigma, rtol=1e-6)
 
 
 def test_batch_estimation_over_values(log, prototype):
@@ -110,7 +111,7 @@ def test_batch_estimation_over_values(log, prototype):
     prob, F, disp, ten = log
     mu = np.linspace(0.2, 0.6, len(F))
     out = estimate_batch(prob, disp, ten, values={"friction": mu})
-    for k in (0, 11, 29):
+    for k in range(len(F)):
         plain = estimate_problem(prob, disp[k], ten[k],
                                  values=prob.model.with_values(friction=mu[k]).values)
         assert out[k].converged and plain.converged
