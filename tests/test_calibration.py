@@ -136,6 +136,18 @@ def test_what_the_readings_cannot_determine_is_refused(truth):
         identify(truth, tendon_snapshots(truth, poses=POSES[3:6]), ("friction_t9",))
 
 
+def test_a_fit_that_does_not_explain_the_data_says_so(truth):
+    """Residuals about the noise: the misfit near 1, no warning; friction left at a wrong
+    guess (the tutorial's slip), the residuals many times the noise: a warning, and the
+    1-σ values said to assume the noise alone."""
+    snaps = tendon_snapshots(truth, noise=1e-4, seed=2)
+    good = identify(start(truth), snaps, ALL)
+    assert good.converged and 0.5 < good.misfit < 1.5 and good.warning == ""
+    partial = identify(start(truth), snaps, ("young_modulus", "density"))
+    assert partial.misfit > 2 and "the model does not fit the data" in partial.warning
+    assert partial.to_json()["warning"] == partial.warning
+
+
 def test_cross_validation_predicts_each_left_out_snapshot(truth):
     snaps = tendon_snapshots(truth, noise=1e-4, seed=1, poses=POSES[:8])
     fit = identify(start(truth), snaps, ALL, crossval=True)

@@ -1365,6 +1365,8 @@ def _fitted_header(args, robot, fit, source: str) -> list[str]:
         if after is not None:
             lines.append(f"{what} RMSE {_mm(after)} (with the robot file's values "
                          f"{_mm(before)})")
+    if fit.warning:
+        lines.append(f"WARNING: {fit.warning}")
     return lines
 
 
@@ -1414,6 +1416,11 @@ def _identify(args, robot) -> bool:
     if fit.displacement_rmse is not None:
         print(f"  tendon-length RMSE: {_mm(fit.displacement_rmse)} after the fit, "
               f"{_mm(fit.initial_displacement_rmse)} with the robot file's values")
+    if fit.misfit is not None:
+        print(f"  residuals: {fit.misfit:.2g} times the noise assumed (RMS; about 1 when the model "
+              f"explains the data)")
+    if fit.warning:
+        print(f"  WARNING: {fit.warning}")
     if fit.crossval:
         print("  cross-validation (each snapshot predicted by a fit without it):")
         for c in fit.crossval:

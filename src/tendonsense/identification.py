@@ -73,6 +73,10 @@ class Identified:
     snapshot_errors: tuple[tuple[float | None, float | None], ...] = ()  # per snapshot, fitted
     sigma: dict[str, float | None] = field(default_factory=dict)  # 1 σ per parameter, SI
     note: str = ""  # why the fit is not converged, when it is not
+    #: the RMS of the residuals in units of their noise (about 1 where the model explains the
+    #: data and the noise is as assumed)
+    misfit: float | None = None
+    warning: str = ""  # a converged fit that does not explain the data: why to doubt it
 
     def to_json(self) -> dict:
         out = {**self.parameters, "sigma": self.sigma, "marker_rmse": self.marker_rmse,
@@ -82,6 +86,9 @@ class Identified:
                "converged": self.converged, "iterations": self.iterations}
         if self.note:
             out["note"] = self.note
+        out["misfit"] = self.misfit
+        if self.warning:
+            out["warning"] = self.warning
         if self.crossval:
             out["crossval"] = [c.to_json() for c in self.crossval]
         return out
@@ -326,6 +333,27 @@ def _what(snapshots) -> str:
     return " and ".join(kinds)
 
 
+#: a fit whose χ² is above this quantile of the χ² distribution of its degrees of freedom
+#: is said not to explain the data
+MISFIT_QUANTILE = 0.999
+
+
+def misfit_of(chi2: float, n: int, n_params: int) -> tuple[float, str]:
+    """The RMS of ``n`` noise-weighted residuals of total ``chi2`` over their degrees of
+    freedom (about 1 where the model explains the data and the noise is as assumed), and a
+    warning where ``chi2`` is above the :data:`MISFIT_QUANTILE` quantile of its χ²
+    distribution (the 1-σ values assume the noise alone)."""
+    from scipy.stats import chi2 as distribution
+    dof = max(n - n_params, 1)
+    ratio = float(np.sqrt(chi2 / dof))
+    if chi2 <= distribution.ppf(MISFIT_QUANTILE, dof):
+        return ratio, ""
+    return ratio, (f"the residuals are {ratio:.2g} times the noise assumed, more than noise "
+                   f"explains: the model does not fit the data (a parameter not fitted, a load "
+                   f"not given, a unit) or the noise is larger (--marker-noise, "
+                   f"--length-noise); the ± values assume that noise alone")
+
+
 def _errors(parts):
     """RMS marker distance and RMS length residual over ``parts`` (None where empty)."""
     m = np.concatenate([p for p, _ in parts]) if parts else np.zeros((0, 3))
@@ -374,8 +402,10 @@ def identify(robot: Robot, snapshots: Sequence[Snapshot],
     new_robot = robot.with_parameters(young_modulus=fitted.get("young_modulus"),
                                       density=fitted.get("density"),
                                       friction={**shared, **mu} or None)
+    r = setup.residual(parts)
+    ratio, warning = misfit_of(float(r @ r), r.size, len(params))
     return Identified(fitted, *_errors(parts), *initial, converged, it, new_robot, folds,
-                      per_snapshot, sigma, note)
+                      per_snapshot, sigma, note, ratio, warning)
 
 
 def _cross_validate(setup: _Setup, snapshots, theta, qs, fitted_errors, max_iterations,
@@ -529,6 +559,8 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
             f"{10 * t[-1]:g} s): the log does not pin it down" if edge else
             "" if sigma is not None else "the log bounds the damping from below only (χ² "
             "rises by less than 1 up to the end of the range searched)")
+    ratio, warning = misfit_of(chi2_min, dp.size + dy.size, 1)
     return Identified({"damping": eta}, *errors(dp, dy), *errors(*initial),
                       bool(found.success) and not edge, evaluations[0],
-                      robot.with_parameters(damping=eta), sigma={"damping": sigma}, note=note)
+                      robot.with_parameters(damping=eta), sigma={"damping": sigma}, note=note,
+                      misfit=ratio, warning=warning)
