@@ -737,7 +737,7 @@ def _check_logs(args, robot, tensions, displacements):
                              "log, not one of several")
         found = sorted(glob.glob(r)) if PATTERN & set(r) else [r]
         if not found:
-            raise UsageError(f"tendonsense estimate: --readings {r}: no file matches")
+            raise ReadingsError(f"--readings {r}: no file matches")  # a missing input: 1
         logs += [f for f in found if f not in logs]
     out = Path(args.estimates)
     folder = out if out.exists() else out.parent
