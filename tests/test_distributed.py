@@ -361,6 +361,15 @@ def test_a_set_with_no_solution_is_marked_with_why(tmp_path, capsys):
     assert rows[1]["marker_tip_x"] == "" and rows[0]["solver_note"] == rows[2]["solver_note"] == ""
 
 
+def test_a_task_size_without_a_cluster_is_refused(tmp_path, capsys):
+    (tmp_path / "sets.csv").write_text("tension_t1\n2.0\n")
+    code = cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", tmp_path / "r.csv",
+                     "--task-size", "10"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "--task-size goes with --workers" in err[0], err
+    assert not (tmp_path / "r.csv").exists()
+
+
 def test_a_bad_parameter_set_is_named_and_nothing_written(tmp_path, capsys):
     (tmp_path / "sets.csv").write_text("tension_t1,young_modulus\n2.0,1e6\n2.0,-5\n")
     code = cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", tmp_path / "r.csv"])

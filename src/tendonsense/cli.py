@@ -447,7 +447,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a known force (N, global) at X m from the base, the same in every "
                         "set; repeatable")
     _cluster_options(p, "the sets")
-    p.add_argument("--task-size", type=int, default=1000, metavar="N",
+    p.add_argument("--task-size", type=int, metavar="N",
                    help="with --workers or --scheduler: sets per task (default 1000)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
@@ -564,7 +564,10 @@ def _check(args, robot) -> None:
     elif cmd == "sweep":
         from .readings import read_parameter_sets
         _check_cluster(args)
-        if args.task_size < 1:
+        if args.task_size is not None and args.workers is None and args.scheduler is None:
+            raise UsageError("tendonsense sweep: --task-size goes with --workers or "
+                             "--scheduler (here every set is solved by one batch)")
+        if args.task_size is not None and args.task_size < 1:
             raise UsageError(f"tendonsense sweep: --task-size {args.task_size}: at least 1")
         inputs.check_point_forces(robot, _point_forces(args))
         _writable(args.results, "-o/--results")
@@ -1502,9 +1505,9 @@ def _sweep(args, robot) -> bool:
                 from .tracking import solve_batch
                 out = solve_batch(robot, sets.tensions, forces, sets.values)
             else:
-                from .distributed import solve_batch
+                from .distributed import TASK_SIZE, solve_batch
                 out = solve_batch(client, robot, sets.tensions, forces, sets.values,
-                                  args.task_size, prog)
+                                  args.task_size or TASK_SIZE, prog)
         finally:
             prog.close()
     write_csv_atomic(args.results, *sweep_rows(robot, sets, out))
