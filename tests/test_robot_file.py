@@ -37,7 +37,10 @@ def bad(tmp_path, old, new):
     ("offset_base = [0, 0.014]", "offset_base = [0, 0.04]", "reachable radius"),
     ("bending_y = 4", "bending_y = -1", "strain.bending_y"),
     ('name = "mid"', 'name = "tip"', "two markers"),
-    ("X = 0.125", "X = 0.3", "marker[0].X"),
+    ("X = 0.125", "X = 0.3", "marker[0] (mid).X"),
+    ("friction = 0.4", "friction = -0.4", "tendon[0] (t1).friction: must be >= 0, got -0.4"),
+    ("length = 0.25", "length = true", "got true"),  # as TOML spells it
+    ("disks = 9", "disks = [0.0, 0.1, 0.3]", "got 0.3"),
     ("[gravity]\nacceleration = [0.0, 0.0, -9.81]", "[gravity]\nacceleration = [0.0, -9.81]",
      "gravity.acceleration"),
 ])
@@ -106,11 +109,11 @@ MASS = '\n[[mass]]\nname = "ring"\nX = 0.15\nmass = 0.02\n'
 
 
 @pytest.mark.parametrize("table,expect", [
-    ('\n[[mass]]\nname = "ring"\nX = 0.3\nmass = 0.02\n', "mass[0].X"),
-    ('\n[[mass]]\nname = "ring"\nX = 0.1\nmass = 0.0\n', "mass[0].mass"),
-    ('\n[[mass]]\nname = "ring"\nX = 0.1\n', "mass[0].mass: missing"),
-    ('\n[[mass]]\nname = "ring"\nX = 0.1\nmass = 0.01\noffset = [0, 1]\n', "mass[0].offset"),
-    (MASS + MASS, "two masss"),
+    ('\n[[mass]]\nname = "ring"\nX = 0.3\nmass = 0.02\n', "mass[0] (ring).X"),
+    ('\n[[mass]]\nname = "ring"\nX = 0.1\nmass = 0.0\n', "mass[0] (ring).mass"),
+    ('\n[[mass]]\nname = "ring"\nX = 0.1\n', "mass[0] (ring).mass: missing"),
+    ('\n[[mass]]\nname = "ring"\nX = 0.1\nmass = 0.01\noffset = [0, 1]\n', "mass[0] (ring).offset"),
+    (MASS + MASS, "two masses"),
 ])
 def test_bad_masses_name_key_and_reason(tmp_path, table, expect):
     p = tmp_path / "r.toml"

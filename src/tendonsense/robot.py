@@ -6,6 +6,7 @@ Every bad value raises :class:`RobotFileError` with one line naming the key and 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import tomllib
 from collections.abc import Sequence
@@ -138,6 +139,11 @@ def load_robot(path: str | Path) -> Robot:
     return parse_robot(data, source=str(path), default_name=path.stem)
 
 
+def _toml(v) -> str:
+    """A value read from the file, spelled as in TOML (``true``, ``"soft"``, ``[1, 2]``)."""
+    return json.dumps(v, default=str)
+
+
 class _Reader:
     """Typed access to one TOML table with key paths in the error messages."""
 
@@ -168,7 +174,7 @@ class _Reader:
 
     def _number(self, key, v, low=None, high=None, low_open=False):
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            self.fail(key, f"must be a number, got {v!r}")
+            self.fail(key, f"must be a number, got {_toml(v)}")
         v = float(v)
         if not math.isfinite(v):
             self.fail(key, f"must be finite, got {v}")
@@ -185,7 +191,7 @@ class _Reader:
             return default
         v = self.table[key]
         if isinstance(v, bool) or not isinstance(v, int):
-            self.fail(key, f"must be a whole number, got {v!r}")
+            self.fail(key, f"must be a whole number, got {_toml(v)}")
         if v < low or (high is not None and v > high):
             self.fail(key, f"must be between {low} and {high}, got {v}" if high is not None
                       else f"must be >= {low}, got {v}")
@@ -198,7 +204,7 @@ class _Reader:
             return default
         v = self.table[key]
         if not isinstance(v, list) or len(v) != n:
-            self.fail(key, f"must be a list of {n} numbers, got {v!r}")
+            self.fail(key, f"must be a list of {n} numbers, got {_toml(v)}")
         return tuple(self._number(key, x) for x in v)
 
     def string(self, key, *, default=None):
@@ -208,7 +214,7 @@ class _Reader:
             return default
         v = self.table[key]
         if not isinstance(v, str) or not v.strip():
-            self.fail(key, f"must be a non-empty string, got {v!r}")
+            self.fail(key, f"must be a non-empty string, got {_toml(v)}")
         return v
 
 
@@ -302,10 +308,12 @@ def _parse_elements(r: _Reader, raw, L: float, tendons) -> tuple[float, ...]:
             r.fail("elements", '"disks": no disk lies strictly inside the rod')
         return tuple(inner)
     if not isinstance(raw, list) or not raw:
-        r.fail("elements", f'must be "disks" or a list of X inside (0, {L:g}), got {raw!r}')
+        r.fail("elements", f'must be "disks" or a list of X inside (0, {L:g}), got {_toml(raw)}')
     X = tuple(r._number("elements", x) for x in raw)
-    if any(not 0.0 < x < L for x in X):
-        r.fail("elements", f"every element bound must lie strictly inside (0, {L:g})")
+    outside = [x for x in X if not 0.0 < x < L]
+    if outside:
+        r.fail("elements", f"every element bound must lie strictly inside (0, {L:g}), got "
+                           f"{outside[0]:g}")
     if any(b <= a for a, b in zip(X, X[1:])):
         r.fail("elements", "element bounds must be strictly increasing")
     return X
@@ -316,14 +324,16 @@ def _tables(data: dict, key: str, top: _Reader) -> list[_Reader]:
     raw = data.get(key, [])
     if not isinstance(raw, list):
         top.fail(key, f"must be an array of tables ([[{key}]])")
-    return [_Reader(t, f"{key}[{i}]", top.source) for i, t in enumerate(raw)]
+    return [_Reader(t, f"{key}[{i}]" + (f" ({t['name']})" if isinstance(t, dict) and isinstance(
+        t.get("name"), str) and t["name"] else ""), top.source) for i, t in enumerate(raw)]
 
 
 def _unique(names, what, reader):
     seen = set()
     for n in names:
         if n in seen:
-            reader.fail(what, f"two {what}s are named {n!r}")
+            reader.fail(what, f"two {what}{'es' if what.endswith('s') else 's'} are named "
+                              f"{n!r}")
         seen.add(n)
 
 
@@ -388,12 +398,13 @@ def _parse_tendon(r: _Reader, rod: Rod) -> Tendon:
         if len(raw) < 2:
             r.fail("disks", "must list at least 2 disk positions")
         disks = tuple(r._number("disks", x) for x in raw)
-        if any(x < 0 or x > L * (1 + 1e-12) for x in disks):
-            r.fail("disks", f"every disk X must lie in [0, {L:g}]")
+        outside = [x for x in disks if x < 0 or x > L * (1 + 1e-12)]
+        if outside:
+            r.fail("disks", f"every disk X must lie in [0, {L:g}], got {outside[0]:g}")
         if any(b <= a for a, b in zip(disks, disks[1:])):
             r.fail("disks", "disk positions must be strictly increasing")
     else:
-        r.fail("disks", f'must be a count, a list of X or "continuous", got {raw!r}')
+        r.fail("disks", f'must be a count, a list of X or "continuous", got {_toml(raw)}')
     t = Tendon(name, ob, ot, mu, disks, continuous)
     _check_reach(r, t, rod)
     return t
