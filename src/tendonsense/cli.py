@@ -1028,7 +1028,8 @@ def _print_result(result, as_json: bool, title: str, robot, unknowns=()):
         print("no result: the last iterate is not a solution (--json gives it, marked "
               "\"converged\": false; --plot draws it, stamped)")
         return
-    print(f"{title} ({robot.name}): converged in {result.iterations} iterations "
+    print(f"{title} ({robot.name}): converged in {result.iterations} "
+          f"iteration{'' if result.iterations == 1 else 's'} "
           f"(relative residual {result.residual:.1e})")
     if result.magnitudes is not None:
         print("estimated loads:")
@@ -1474,8 +1475,8 @@ def _simulate(args, robot) -> bool:
                           "converged": sim.ok}))
     else:
         tip = robot.marker_names[-1] if robot.marker_names else None
-        print(f"simulated {sim.time[-1]:g} s in {sim.time.size - 1} steps of "
-              f"{args.output_dt:g} s; wrote {args.log}" + (f", {args.plot}" if args.plot else ""))
+        print(f"simulated {sim.time[-1]:g} s, {sim.time.size} rows every {args.output_dt:g} s; "
+              f"wrote {args.log}" + (f", {args.plot}" if args.plot else ""))
         if tip:
             print(f"marker {tip} at the end: {_vector(sim.markers[tip][-1])} m")
         for n, y in sim.displacements.items():

@@ -36,7 +36,7 @@ def model_for(robot: Robot) -> Model:
 def stopped(res: NewtonResult, tolerance: float) -> str:
     """Why the solver's ``res`` is no solution: where it stopped."""
     return (f"the solver stopped after {int(res.iterations)} iterations at relative residual "
-            f"{float(res.residual):.1e} (tolerance {tolerance:.0e})")
+            f"{float(res.residual):.2e} (tolerance {tolerance:.0e})")
 
 
 def make_result(model: Model, x, tensions, res: NewtonResult, why: str | None = None,
