@@ -17,6 +17,7 @@ from matplotlib.cm import ScalarMappable  # noqa: E402
 from matplotlib.colors import ListedColormap, Normalize  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from .forward import model_for  # noqa: E402
 from .inputs import EDGE  # noqa: E402
@@ -490,12 +491,17 @@ def comparison(table: dict[str, list], path):
     models = list(table)
     groups = sorted({r.case.rsplit("-", 1)[0] for r in next(iter(table.values()))})
     fig, ax = plt.subplots(figsize=(7, 4))
-    width = 0.8 / len(models)
-    for i, m in enumerate(models):
-        means = [np.nanmean([r.error(r.ours) for r in table[m]
-                             if r.case.rsplit("-", 1)[0] == g]) * 100 for g in groups]
-        ax.bar(np.arange(len(groups)) + i * width, means, width, label=m)
-    ax.set_xticks(np.arange(len(groups)) + width * (len(models) - 1) / 2, groups)
+    rows = next(iter(table.values()))
+    series = [(m, [r.error(r.ours) for r in table[m]], table[m]) for m in models]
+    if any(r.paper is not None for r in rows):  # the paper's own estimates, where it gives them
+        series.append(("the paper's estimates", [r.error(r.paper) for r in rows], rows))
+    width = 0.8 / len(series)
+    for i, (name, errors, of) in enumerate(series):
+        means = [np.nanmean([e for e, r in zip(errors, of) if r.case.rsplit("-", 1)[0] == g])
+                 * 100 for g in groups]
+        ax.bar(np.arange(len(groups)) + i * width, means, width, label=name,
+               color="0.6" if name == "the paper's estimates" else None)
+    ax.set_xticks(np.arange(len(groups)) + width * (len(series) - 1) / 2, groups)
     ax.set_ylabel("mean relative force error (%)")
     ax.set_title("Force error of each rod model on the paper's experiments")
     ax.legend()
@@ -518,7 +524,8 @@ def location_profile(result, path):
     ax.axvspan((loc - sig) * 1e3, (loc + sig) * 1e3, color="tab:red", alpha=0.15,
                label="estimate ± 1 σ")
     ax.axvline(loc * 1e3, color="tab:red", label=f"estimate X = {loc * 1e3:.1f} mm")
-    ax.set_xlim(X.min() * 1e3, X.max() * 1e3)
+    pad = 0.03 * (X.max() - X.min()) * 1e3  # an estimate at an end of the range stays visible
+    ax.set_xlim(X.min() * 1e3 - pad, X.max() * 1e3 + pad)
     ax.set_xlabel("X where the force acts (mm from the base)")
     ax.set_ylabel("RMS tendon-length misfit (mm)")
     ax.set_title("Where does the force act? Tendon-length misfit over X")
@@ -549,7 +556,10 @@ def calibration(fit, path):
         if top > 0:
             ax.set_ylim(0.0, 1.3 * top * 1e3)
         ax.set_ylabel(f"RMS {'marker' if kind == 'marker' else 'tendon-length'} error (mm)")
-        ax.set_xticks(idx)
+        if idx.size <= 30:
+            ax.set_xticks(idx)
+        else:  # numbers that stay readable
+            ax.xaxis.set_major_locator(MaxNLocator(nbins=15, integer=True))
         ax.legend(fontsize=8, loc="upper center", ncol=2)
     axes[-1, 0].set_xlabel("snapshot")
     axes[0, 0].set_title("Calibration: per-snapshot error" +
