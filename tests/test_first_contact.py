@@ -408,3 +408,14 @@ def test_a_file_log_names_its_first_skipped_rows_and_counts_the_rest(tmp_path):
     assert "row 20 skipped" in err[19] and "5 more rows skipped" in err[20]
     assert "not every solve converged" in err[21]
     assert "40 samples: 15 converged, 25 skipped" in p.stdout
+
+
+def test_results_echo_in_a_few_lines(prototype):
+    """A notebook echoes a result readably: long arrays by their shape, the rest in full."""
+    from tendonsense.tracking import solve_batch
+    r = solve(prototype, {"t1": 2.0})
+    text = repr(r)
+    assert len(text) < 600 and "backbone=<array (101, 3)>" in text and "converged=True" in text
+    assert "'tip': [" in text  # a marker's position in full
+    b = repr(solve_batch(prototype, {"t1": np.linspace(1.0, 2.0, 50)}))
+    assert len(b) < 600 and "q=<array (50, 15)>" in b

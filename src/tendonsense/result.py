@@ -3,9 +3,34 @@ the lighter one of a sample in a series."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
+
+
+def _short(v) -> str:
+    """``v`` in a line: an array of more than six numbers by its shape, numbers to 6 digits."""
+    if isinstance(v, np.ndarray) or hasattr(v, "__array__") and hasattr(v, "shape"):
+        a = np.asarray(v)
+        if a.size > 6:
+            return f"<array {a.shape}>"
+        if a.ndim == 0:
+            return _short(a.item())
+        return np.array2string(a, precision=6, separator=", ")
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k!r}: {_short(x)}" for k, x in v.items()) + "}"
+    if isinstance(v, (list, tuple)) and len(v) > 6:
+        return f"<{type(v).__name__} of {len(v)}>"
+    if isinstance(v, (float, np.floating)):
+        return f"{float(v):.6g}"
+    return repr(v)
+
+
+def compact_repr(self) -> str:
+    """A result's fields in a notebook's echo: long arrays by their shape."""
+    return (f"{type(self).__name__}(" + ", ".join(
+        f"{f.name}={_short(getattr(self, f.name))}" for f in dataclasses.fields(self)) + ")")
 
 
 @dataclass(frozen=True, eq=False)
@@ -27,6 +52,8 @@ class Result:
     sigma: np.ndarray | None = None  # estimation: 1-σ band of the magnitudes
     sensitivity: dict[str, np.ndarray] | None = None  # ∂magnitudes/∂measurement
     extra: dict = field(default_factory=dict)
+
+    __repr__ = compact_repr
 
     def to_json(self) -> dict:
         """The documented JSON keys (plus uncertainty for estimates) as plain JSON types."""
@@ -78,6 +105,8 @@ class SampleEstimate:
     location_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
     friction_state: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per tendon, ±1
     sliding: tuple[str, ...] = ()  # per tendon: in, out or stuck; empty: every one pulled in
+
+    __repr__ = compact_repr
     magnitude_range: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # if stuck
 
     @staticmethod

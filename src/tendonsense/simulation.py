@@ -13,6 +13,7 @@ import numpy as np
 from . import inputs
 from .dynamics import Schedule, integrator
 from .forward import model_for
+from .result import compact_repr
 from .robot import Robot
 from .statics import shape_outputs
 
@@ -42,6 +43,8 @@ class Simulation:
     markers: dict[str, np.ndarray]
     converged: np.ndarray
     friction_state: dict[str, np.ndarray]
+
+    __repr__ = compact_repr
 
     @property
     def ok(self) -> bool:

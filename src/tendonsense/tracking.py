@@ -20,7 +20,7 @@ from .inputs import Noise, tendon_vector
 from .model import VALUE_NAMES
 from .online import RESCUE_BUDGET, OnlineEstimator
 from .problem import Problem, band  # noqa: F401 (API)
-from .result import SampleEstimate
+from .result import SampleEstimate, compact_repr
 from .robot import Robot
 from .sliding import Band, FrictionHistory, labels, turning_program
 from .statics import Drive, Unknowns, shape_outputs, solve_system
@@ -245,6 +245,8 @@ class BatchResult:
     converged: np.ndarray  # (N,) bool
     iterations: np.ndarray  # (N,) residual evaluations
     notes: np.ndarray  # (N,) str: why a sample is no solution ('' where it converged)
+
+    __repr__ = compact_repr
 
 
 def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
