@@ -445,12 +445,15 @@ def sensitivity_single(rows, path):
 
 def ellipsoids(entries, path):
     """Fig. 3b: estimates of 3-D tip forces under the 27 per-tendon error combinations, with
-    their 2-σ ellipsoids, one colour per error source."""
-    fig = plt.figure(figsize=(7, 6))
-    ax = fig.add_subplot(projection="3d")
+    their 2-σ ellipsoids, one colour per error source; beside it, each ellipsoid's longest
+    2-σ semi-axis (gF), so that ellipsoids hidden inside others are read too."""
+    fig = plt.figure(figsize=(12, 6))
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    bars = fig.add_subplot(1, 2, 2)
     u, v = np.mgrid[0:2 * np.pi:16j, 0:np.pi:9j]
     sphere = np.stack([np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v)], -1)
     pts = []
+    longest = {s: np.full(len(entries), np.nan) for s in SOURCES}
     for k, e in enumerate(entries):
         F = np.array(e["force_N"]) / GF
         ax.scatter(*F, color="black", s=30, marker="o", label="applied" if k == 0 else None)
@@ -462,6 +465,7 @@ def ellipsoids(entries, path):
                 continue
             c = est.mean(0)
             w, V = np.linalg.eigh(np.cov(est.T))
+            longest[s][k] = 2 * np.sqrt(max(w.max(), 0.0))
             surf = c + 2 * (sphere * np.sqrt(np.maximum(w, 0))) @ V.T
             ax.plot_wireframe(*np.moveaxis(surf, -1, 0), color=COLOURS[s], lw=0.4, alpha=0.6,
                               label=f"{s} error" if k == 0 else None)
@@ -470,11 +474,25 @@ def ellipsoids(entries, path):
     ax.set_xlabel("F_x (gF)")
     ax.set_ylabel("F_y (gF)")
     ax.set_zlabel("F_z (gF)")
-    ax.set_title("Estimated 3-D tip forces under per-tendon errors (2-σ ellipsoids)")
+    ax.set_title("Estimated tip forces (2-σ ellipsoids)")
+    fig.suptitle("3-D tip forces estimated from three tendons under per-tendon errors")
     ax.legend(handles=[Line2D([], [], ls="", marker="o", color="black", label="applied")]
               + [Line2D([], [], color=COLOURS[s], lw=2, label=f"{s} error") for s in SOURCES],
               fontsize=8)
-    return _save(fig, path)
+    width = 0.8 / len(SOURCES)
+    idx = np.arange(len(entries))
+    for i, s in enumerate(SOURCES):
+        bars.bar(idx + (i - (len(SOURCES) - 1) / 2) * width, longest[s], width,
+                 color=COLOURS[s], label=f"{s} error")
+    bars.set_xticks(idx, ["(" + ", ".join(f"{v:+.0f}" for v in np.array(e["force_N"]) / GF)
+                          + ")" for e in entries], rotation=45, ha="right", fontsize=8)
+    bars.set_xlabel("applied tip force (gF)")
+    bars.set_ylabel("longest 2-σ semi-axis (gF)")
+    bars.set_title("Size of each ellipsoid")
+    bars.set_ylim(0.0, 1.3 * np.nanmax([np.nanmax(v) for v in longest.values()] + [1e-9]))
+    bars.legend(fontsize=8, loc="upper center", ncol=len(SOURCES))
+    fig.tight_layout()
+    return _save(fig, path, tight=False)
 
 
 def resolution(rows, path):
