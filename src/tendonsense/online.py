@@ -211,8 +211,7 @@ class OnlineEstimator:
             x0 = np.zeros(model.nq + prob.n_z)
             self._carry = self._init(x0, drive, {}, unknowns, values)
             if self._eval_cost is None:
-                self._eval_cost = self._time_jacobian(drive)
-                self._rescue(drive, displacements, tensions, 1, values)  # load its program
+                self._eval_cost = self._time_evaluation(drive, displacements, tensions, values)
         carry, row = self._step(self._carry, drive, {}, unknowns, values)
         row, phi = self._unpack(row)
         outside = self._outside(row.x)
@@ -253,9 +252,9 @@ class OnlineEstimator:
             return self._failed(note, row)
         drive = self._ref.drive(T, targets)
         carry = self._init(x, drive, {}, unknowns, values)
-        if self._eval_cost is None:
+        if self._eval_cost is None and not prob.located:  # (located: timed by its search)
             self._carry = carry
-            self._eval_cost = self._time_jacobian(drive)
+            self._eval_cost = self._time_evaluation(drive, displacements, tensions, values)
         carry, row2 = self._step(carry, drive, {}, unknowns, values)
         row2, phi = self._unpack(row2)
         if not row2.converged or self._outside(row2.x):
@@ -287,19 +286,15 @@ class OnlineEstimator:
             self._ref = prob.at([v for v in r.extra["locations"] if v is not None])
         return r.extra["x"], r.converged, int(r.iterations)
 
-    def _time_jacobian(self, drive) -> float:
-        """Seconds per exact Jacobian, timed after compilation: the square init computes one;
-        a least-squares step from the init computes at least one."""
-        args = (drive, {}, self._unknowns, self._values)
+    def _time_evaluation(self, drive, displacements, tensions, values) -> float:
+        """Seconds per evaluation of the rescue (the unit of its budget: a residual with its
+        Jacobian), timed on a rescue of a few evaluations after its program is loaded."""
+        self._rescue(drive, displacements, tensions, 1, values)  # load its program
         best = []
         for _ in range(3):  # the least of three: the first runs may still warm up
             t0 = _clock()
-            if self._square:
-                jax.block_until_ready(self._init(np.asarray(self._carry.x), *args))
-                best.append(_clock() - t0)
-            else:
-                row, _ = self._unpack(self._step(self._carry, *args)[1])
-                best.append((_clock() - t0) / max(1, row.jacobians))
+            _, _, evaluations = self._rescue(drive, displacements, tensions, 4, values)
+            best.append((_clock() - t0) / max(1, evaluations))
         return min(best)
 
     def _unpack(self, flat) -> tuple[Track, np.ndarray]:
