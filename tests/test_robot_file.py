@@ -40,6 +40,8 @@ def bad(tmp_path, old, new):
     ("X = 0.125", "X = 0.3", "marker[0] (mid).X"),
     ("friction = 0.4", "friction = -0.4", "tendon[0] (t1).friction: must be >= 0, got -0.4"),
     ("length = 0.25", "length = true", "got true"),  # as TOML spells it
+    ("length = 0.25\nradius = [0.0125, 0.005]",
+     "length = 250\nradius = [[0, 0.0125], [0.25, 0.005]]", "lengths are in metres"),
     ("disks = 9", "disks = [0.0, 0.1, 0.3]", "got 0.3"),
     ("[gravity]\nacceleration = [0.0, 0.0, -9.81]", "[gravity]\nacceleration = [0.0, -9.81]",
      "gravity.acceleration"),

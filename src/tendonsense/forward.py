@@ -33,10 +33,13 @@ def model_for(robot: Robot) -> Model:
     return Model.build(robot)
 
 
-def stopped(res: NewtonResult, tolerance: float) -> str:
-    """Why the solver's ``res`` is no solution: where it stopped."""
+def why_not(res: NewtonResult, fine: bool, tolerance: float) -> str:
+    """Why the solver's ``res`` is no solution: its strain left the model's range (``fine``
+    False), or where the solver stopped."""
+    if not fine:
+        return INADMISSIBLE
     return (f"the solver stopped after {int(res.iterations)} iterations at relative residual "
-            f"{float(res.residual):.2e} (tolerance {tolerance:.0e})")
+            f"{float(res.residual):.2e} (tolerance {tolerance:g})")
 
 
 def make_result(model: Model, x, tensions, res: NewtonResult, why: str | None = None,
@@ -47,7 +50,7 @@ def make_result(model: Model, x, tensions, res: NewtonResult, why: str | None = 
     q = np.asarray(x[: model.nq])
     markers, backbone, y, fine = shape_outputs(model.structure, model.values, q)
     if not (bool(res.converged) and fine):
-        why = INADMISSIBLE if not fine else why or stopped(res, robot.numerics.tolerance)
+        why = why_not(res, fine, robot.numerics.tolerance) if not fine or not why else why
         note = extra.get("extra", {}).get("note")
         extra["extra"] = {**extra.get("extra", {}),
                           "note": why if not note or why in note else f"{why}; {note}"}

@@ -338,20 +338,23 @@ def _what(snapshots) -> str:
 MISFIT_QUANTILE = 0.999
 
 
-def misfit_of(chi2: float, n: int, n_params: int) -> tuple[float, str]:
+def misfit_of(chi2: float, n: int, n_params: int) -> tuple[float | None, str]:
     """The RMS of ``n`` noise-weighted residuals of total ``chi2`` over their degrees of
-    freedom (about 1 where the model explains the data and the noise is as assumed), and a
-    warning where ``chi2`` is above the :data:`MISFIT_QUANTILE` quantile of its χ²
-    distribution (the 1-σ values assume the noise alone)."""
+    freedom (about 1 where the model explains the data and the noise is as assumed; None
+    without a degree of freedom), and a warning where ``chi2`` is above the
+    :data:`MISFIT_QUANTILE` quantile of its χ² distribution (the 1-σ values assume the noise
+    alone)."""
     from scipy.stats import chi2 as distribution
-    dof = max(n - n_params, 1)
+    dof = n - n_params
+    if dof < 1:
+        return None, ""
     ratio = float(np.sqrt(chi2 / dof))
     if chi2 <= distribution.ppf(MISFIT_QUANTILE, dof):
         return ratio, ""
     return ratio, (f"the residuals are {ratio:.2g} times the noise assumed, more than noise "
                    f"explains: the model does not fit the data (a parameter not fitted, a load "
-                   f"not given, a unit) or the noise is larger (--marker-noise, "
-                   f"--length-noise); the ± values assume that noise alone")
+                   f"not given, a unit) or the noise is larger than assumed (the marker and "
+                   f"length noise given); the ± values assume that noise alone")
 
 
 def _errors(parts):
@@ -559,7 +562,7 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
             f"{10 * t[-1]:g} s): the log does not pin it down" if edge else
             "" if sigma is not None else "the log bounds the damping from below only (χ² "
             "rises by less than 1 up to the end of the range searched)")
-    ratio, warning = misfit_of(chi2_min, dp.size + dy.size, 1)
+    ratio, warning = misfit_of(chi2_min, dp.size + dy.size, 1) if dp is not None else (None, "")
     return Identified({"damping": eta}, *errors(dp, dy), *errors(*initial),
                       bool(found.success) and not edge, evaluations[0],
                       robot.with_parameters(damping=eta), sigma={"damping": sigma}, note=note,

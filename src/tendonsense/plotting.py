@@ -590,6 +590,12 @@ def calibration(fit, path):
 AXIS_COLOURS = {"x": "tab:red", "y": "tab:purple", "z": "tab:brown"}
 
 
+def _repeats(curve, drawn) -> str | None:
+    """The name of an earlier curve of ``drawn`` [(name, curve)] that ``curve`` repeats (to
+    0.1 µm, 1e-7 N), or None."""
+    return next((m for m, c in drawn if np.allclose(curve, c, rtol=0, atol=1e-7)), None)
+
+
 def simulation(sim, path, title: str = "simulated motion", given: str = ""):
     """A simulated motion over time: the tensions (N; solid pulled in, dotted stuck, dashed
     paid out) and the tendon length changes (mm), a tendon whose curve repeats an earlier
@@ -600,9 +606,8 @@ def simulation(sim, path, title: str = "simulated motion", given: str = ""):
     drawn = []
     for n, T in sim.tensions.items():
         s = sim.friction_state[n]
-        again = next((m for m, U, r in drawn if np.array_equal(T, U) and np.array_equal(s, r)),
-                     None)
-        drawn.append((n, T, s))
+        again = _repeats(np.stack([T, s]), drawn)
+        drawn.append((n, np.stack([T, s])))
         if again:  # drawn over the earlier one, its gaps showing it
             axes[0].plot(t, T, linestyle=(0, (4, 4)), label=f"{n} (as {again})")
             continue
@@ -618,7 +623,7 @@ def simulation(sim, path, title: str = "simulated motion", given: str = ""):
     axes[0].set_ylabel("tension (N)")
     drawn = []
     for n, y in sim.displacements.items():
-        again = next((m for m, z in drawn if np.allclose(y, z, rtol=0, atol=1e-7)), None)
+        again = _repeats(y, drawn)
         axes[1].plot(t, y * 1e3, "--" if again else "-",
                      label=n if again is None else f"{n} (as {again})")
         drawn.append((n, y))

@@ -185,7 +185,7 @@ def _check_units(path, columns: Columns, robot: Robot, rows):
         rest = columns.rest[robot.tendon_names.index(name)]
         v = np.array([_number(r[k]) for r in rows if len(r) == len(columns.header)])
         v = v[np.isfinite(v)]
-        over = int(np.sum(np.abs(v) >= rest))
+        over = sum(displacement_error(name, y, rest) is not None for y in v)
         if over >= 3 and over > v.size / 2:
             raise ReadingsError(
                 f"{path}: column displacement_{name}: {over} of {v.size} rows change the "

@@ -105,9 +105,9 @@ class SampleEstimate:
     location_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
     friction_state: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per tendon, ±1
     sliding: tuple[str, ...] = ()  # per tendon: in, out or stuck; empty: every one pulled in
+    magnitude_range: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # if stuck
 
     __repr__ = compact_repr
-    magnitude_range: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # if stuck
 
     @staticmethod
     def failed(prob, note: str, x=None, iterations: int = 0) -> "SampleEstimate":

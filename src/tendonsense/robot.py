@@ -141,7 +141,7 @@ def load_robot(path: str | Path) -> Robot:
 
 def _toml(v) -> str:
     """A value read from the file, spelled as in TOML (``true``, ``"soft"``, ``[1, 2]``)."""
-    return json.dumps(v, default=str)
+    return json.dumps(v, default=str, ensure_ascii=False)
 
 
 class _Reader:
@@ -324,8 +324,12 @@ def _tables(data: dict, key: str, top: _Reader) -> list[_Reader]:
     raw = data.get(key, [])
     if not isinstance(raw, list):
         top.fail(key, f"must be an array of tables ([[{key}]])")
-    return [_Reader(t, f"{key}[{i}]" + (f" ({t['name']})" if isinstance(t, dict) and isinstance(
-        t.get("name"), str) and t["name"] else ""), top.source) for i, t in enumerate(raw)]
+    def named(i, t):  # "tendon[0] (t1)": the index, and the name where the entry has one
+        name = t.get("name") if isinstance(t, dict) else None
+        return f"{key}[{i}]" + (f" ({name.strip()})" if isinstance(name, str)
+                                and name.strip() else "")
+
+    return [_Reader(t, named(i, t), top.source) for i, t in enumerate(raw)]
 
 
 def _unique(names, what, reader):
@@ -341,6 +345,9 @@ def _parse_rod(r: _Reader) -> Rod:
     r.check_keys(("length", "radius", "young_modulus", "poisson_ratio", "density",
                   "disk_radius", "damping"))
     L = r.number("length", low=0.0, low_open=True)
+    if L > MAX_LENGTH:
+        r.fail("length", f"{L:g} m is longer than any rod this models ({MAX_LENGTH:g} m; "
+                         f"lengths are in metres)")
     if not r.has("radius"):
         r.fail("radius", "missing")
     raw = r.table["radius"]
@@ -361,14 +368,11 @@ def _parse_rod(r: _Reader) -> Rod:
     if any(rr <= 0 for _, rr in knots):
         bad = next(rr for _, rr in knots if rr <= 0)
         r.fail("radius", f"every radius must be > 0, got {bad:g}")
-    if L > MAX_LENGTH:
-        r.fail("length", f"{L:g} m is longer than any rod this models ({MAX_LENGTH:g} m; "
-                         f"lengths are in metres)")
-    if max(rr for _, rr in knots) > L / 2:
-        r.fail("radius", f"{max(rr for _, rr in knots):g} m is more than half the rod's length "
-                         f"({L:g} m): the model is a slender rod (lengths are in metres)")
-    disk_radius = r.number("disk_radius", low=0.0, low_open=True) if r.has("disk_radius") else None
     widest = max(rr for _, rr in knots)
+    if widest > L / 2:
+        r.fail("radius", f"{widest:g} m is more than half the rod's length ({L:g} m): the "
+                         f"model is a slender rod (lengths are in metres)")
+    disk_radius = r.number("disk_radius", low=0.0, low_open=True) if r.has("disk_radius") else None
     if disk_radius is not None and disk_radius < widest:
         r.fail("disk_radius", f"spacer disks ({disk_radius:g} m) must be at least as wide as "
                               f"the rod ({widest:g} m)")

@@ -15,7 +15,7 @@ import numpy as np
 from .estimation import estimate_problem
 from .fastpath import (MAX_EVALUATIONS, MAX_JACOBIANS, Carry, Track,  # noqa: F401 (API)
                        follower, stacked_drives, stepper, tracker, unpack_row)
-from .forward import INADMISSIBLE, model_for, stopped
+from .forward import model_for, why_not
 from .inputs import Noise, tendon_vector
 from .model import VALUE_NAMES
 from .online import RESCUE_BUDGET, OnlineEstimator
@@ -309,8 +309,7 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
                 q[k], mk[k], y[k] = np.asarray(res.x), markers, lengths
                 conv[k], its[k] = bool(res.converged) and bool(fine), int(res.evaluations)
                 if not conv[k]:
-                    notes[k] = (INADMISSIBLE if res.converged else
-                                stopped(res, robot.numerics.tolerance))
+                    notes[k] = why_not(res, bool(fine), robot.numerics.tolerance)
             good = np.flatnonzero(conv[idx])
             if good.size:
                 x0 = q[idx[good[-1]]]
