@@ -253,7 +253,6 @@ class OnlineEstimator:
         drive = self._ref.drive(T, targets)
         carry = self._init(x, drive, {}, unknowns, values)
         if self._eval_cost is None and not prob.located:  # (located: timed by its search)
-            self._carry = carry
             self._eval_cost = self._time_evaluation(drive, displacements, tensions, values)
         carry, row2 = self._step(carry, drive, {}, unknowns, values)
         row2, phi = self._unpack(row2)
