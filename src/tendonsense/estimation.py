@@ -303,9 +303,9 @@ def _locate(prob: Problem, drive: Drive, values: Values, T, noise: Noise, budget
     else:
         # the minimum lies at an end of a range (or the refinement failed): hold X there
         unrefined = not converged
-        if unrefined:
+        if unrefined:  # the reason the result is not converged
             X = grid[best]
-            notes.append(f"the location refinement did not converge: X held at the profile's "
+            unrefined = (f"the location refinement did not converge: X held at the profile's "
                          f"best point ({', '.join(f'{x_:g} m' for x_ in X)})")
         X = np.clip(X, lo, hi)
         at_end = [f"{x_:g} m" for x_, a, b in zip(X, lo, hi) if x_ in (a, b)]
@@ -318,6 +318,7 @@ def _locate(prob: Problem, drive: Drive, values: Values, T, noise: Noise, budget
             here.fixed(), d_here, values, tr.x[best], budget)
         x = np.concatenate([xf, np.zeros(n_loc)])
         converged = converged and not unrefined
+        why = why or unrefined or None
     result = _result(here, x, d_here, values, T, noise, converged, iterations, res,
                      length_misfit, why, location_profile=profile)
     poor = [f"{s:.3g} m" for s in result.extra["location_sigma"] if s is not None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 from typing import NamedTuple
@@ -394,11 +395,13 @@ def _extent(axes):
 
 
 def _title(fig, axes, title, given):
-    left, _, _, top = _extent(axes)
+    left, _, right, top = _extent(axes)
     top += 0.3 / fig.get_figheight()
-    if given:
-        fig.text(left, top, given, fontsize=9, va="bottom")
-        top += 0.25 / fig.get_figheight()
+    if given:  # wrapped to the views' width (about half a point size per character)
+        width = int((right - left) * fig.get_figwidth() * 72 / (9 * 0.55))
+        lines = textwrap.wrap(given, max(width, 20), subsequent_indent="  ")
+        fig.text(left, top, "\n".join(lines), fontsize=9, va="bottom")
+        top += (0.1 + 0.16 * len(lines)) / fig.get_figheight()
     if title:
         fig.text(left, top, title, fontsize=11, weight="bold", va="bottom")
 
