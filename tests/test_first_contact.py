@@ -419,3 +419,13 @@ def test_results_echo_in_a_few_lines(prototype):
     assert "'tip': [" in text  # a marker's position in full
     b = repr(solve_batch(prototype, {"t1": np.linspace(1.0, 2.0, 50)}))
     assert len(b) < 600 and "q=<array (50, 15)>" in b
+
+
+def test_the_papers_experiments_on_another_robot_say_so(capsys):
+    """The paper's readings estimated with another robot file: a line says the errors also
+    measure how far that robot is from the prototype; with the prototype, no such line."""
+    from tendonsense.cli import main
+    main(["experiments", ROOT / "examples" / "soromox_tentacle.toml"])
+    assert "is not its robot file" in capsys.readouterr().out
+    main(["experiments", PROTOTYPE])
+    assert "is not its robot file" not in capsys.readouterr().out
