@@ -190,3 +190,16 @@ def test_paper_experiments_all_converge():
     out = json.loads(p.stdout)
     assert out["rows"] == 23 and out["converged"] == 23
     assert len(out["cases"]) == 23 and all(c["estimate"] is not None for c in out["cases"])
+
+
+def test_a_least_squares_fit_keeps_to_its_total_budget(prototype):
+    """``total_budget`` bounds a least-squares fit's equilibrium solves together (the live
+    estimator's rescue within its time limit): a reading that takes many solves stops at the
+    budget and says so; without it the same fit converges."""
+    prob = problem(prototype, ["t1", "t2", "t3"], [PointForceUnknown(0.25, (0, 0, -1))])
+    readings = ({"t1": -0.05, "t2": 0.0005, "t3": 0.0005}, {"t1": 2.0, "t2": 0.0, "t3": 0.0})
+    free = estimate_problem(prob, *readings)
+    assert free.converged and free.iterations > 40
+    bounded = estimate_problem(prob, *readings, budget=12, total_budget=12)
+    assert not bounded.converged and "used its work budget (12 evaluations)" in \
+        bounded.extra["note"]

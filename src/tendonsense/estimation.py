@@ -37,10 +37,12 @@ RELATIVE_OFFSET = 1e-3
 LM_STEPS = 100
 
 
-def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, budget=None):
+def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, budget=None,
+                   total_budget=None):
     """min ‖y(q) − y_meas‖² over the magnitudes z, q solving equilibrium (eq. 17), by
     Levenberg–Marquardt; returns (x, converged, iterations, newton result, misfit, why) with
-    ``why`` the reason a fit whose equilibrium converged is not at a minimum (else None)."""
+    ``why`` the reason a fit whose equilibrium converged is not at a minimum (else None).
+    ``budget`` bounds each equilibrium solve's evaluations, ``total_budget`` theirs together."""
     nq, n_z = prob.model.nq, prob.n_z
     structure = prob.model.structure
     statics_unknowns = Unknowns.none(len(prob.robot.tendons), prob.load_X.size)
@@ -53,15 +55,23 @@ def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, 
             gravity=drive.gravity + z @ prob.unknowns.gravity,
             load_X=drive.load_X + np.asarray(z)[prob.n_magnitudes:] @ prob.unknowns.positions,
             targets=np.zeros(0))
-        res = solve_system(structure, values, (), d, statics_unknowns, q0, budget)
+        left = None if total_budget is None else max(total_budget - used[0], 1)
+        res = solve_system(structure, values, (), d, statics_unknowns, q0,
+                           left if budget is None else budget if left is None
+                           else min(budget, left))
+        used[0] += int(res.evaluations)
         return res, shape_outputs(structure, values, res.x)[2][sel] - y_meas
 
+    def spent() -> bool:
+        return total_budget is not None and used[0] >= total_budget
+
+    used = [0]  # evaluations of the equilibrium solves
     z = np.zeros(n_z) if x0 is None else np.asarray(x0[nq:], float)
     res, e = equilibrium(z, None if x0 is None else x0[:nq])
     total, damping = int(res.iterations), 1e-3
     converged, offset, steps = False, np.inf, 0
     for steps in range(1, LM_STEPS + 1):
-        if not bool(res.converged):
+        if not bool(res.converged) or spent():
             break
         Jz, _ = reduced_jacobians(prob, np.concatenate([np.asarray(res.x), z]), drive, values)
         g = Jz.T @ e
@@ -78,7 +88,7 @@ def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, 
         H = Jz.T @ Jz
         cost = e @ e
         improved = False
-        while damping < 1e12:
+        while damping < 1e12 and not spent():
             dz = np.linalg.solve(H + damping * np.diag(np.diag(H)), -g)
             r2, e2 = equilibrium(z + dz, res.x)
             total += int(r2.iterations)
@@ -100,7 +110,9 @@ def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, 
             break
     x = np.concatenate([np.asarray(res.x), z])
     why = None
-    if bool(res.converged) and not converged:
+    if bool(res.converged) and not converged and spent():
+        why = f"the least-squares fit used its work budget ({total_budget} evaluations)"
+    elif bool(res.converged) and not converged:
         why = (f"the least-squares fit stopped after {steps} steps short of a minimum: no step "
                f"lowers the length misfit, yet the model could still explain a share "
                f"{offset:.1e} of it (relative offset; a minimum is below {RELATIVE_OFFSET:g})"
@@ -199,11 +211,12 @@ def _other_equilibrium(prob: Problem, displacements, tensions, noise: Noise, val
 
 
 def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Noise(),
-                     x0=None, values: Values | None = None, budget: int | None = None
-                     ) -> Result:
+                     x0=None, values: Values | None = None, budget: int | None = None,
+                     total_budget: int | None = None) -> Result:
     """:func:`estimate` on a prepared :func:`problem`; ``values`` overrides the robot file's
     values (e.g. a friction error, :meth:`Model.with_values`) without recompiling; ``budget``
-    bounds the evaluations of each equilibrium solve (:func:`~tendonsense.statics.solve_system`).
+    bounds the evaluations of each equilibrium solve (:func:`~tendonsense.statics.solve_system`),
+    ``total_budget`` those of a least-squares fit's solves together.
     With located unknowns ``x0`` is not used: their X is searched over its whole range."""
     model = prob.model
     T, y_all = prob.readings(displacements, tensions)
@@ -211,12 +224,13 @@ def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Nois
     values = model.values if values is None else values
     if prob.located:
         return _locate(prob, drive, values, T, noise, budget)
-    x, converged, iterations, res, misfit, why = _solve(prob, drive, values, x0, budget)
+    x, converged, iterations, res, misfit, why = _solve(prob, drive, values, x0, budget,
+                                                        total_budget)
     return _result(prob, x, drive, values, T, noise, converged, iterations, res, misfit,
                    why=why)
 
 
-def _solve(prob: Problem, drive: Drive, values: Values, x0, budget):
+def _solve(prob: Problem, drive: Drive, values: Values, x0, budget, total_budget=None):
     """(x, converged, iterations, Newton result, length misfit, why not converged or None)
     of a square or least-squares problem."""
     model = prob.model
@@ -224,7 +238,8 @@ def _solve(prob: Problem, drive: Drive, values: Values, x0, budget):
         res = solve_system(model.structure, values, prob.measured, drive, prob.unknowns, x0,
                            budget)
         return np.asarray(res.x), bool(res.converged), int(res.iterations), res, 0.0, None
-    return _least_squares(prob, drive, values, x0, prob.robot.numerics.tolerance, budget)
+    return _least_squares(prob, drive, values, x0, prob.robot.numerics.tolerance, budget,
+                          total_budget)
 
 
 def _result(prob: Problem, x, drive, values, T, noise, converged, iterations, res, misfit,

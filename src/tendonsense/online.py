@@ -280,7 +280,7 @@ class OnlineEstimator:
                                prob.unknowns, None, budget)
             return res.x, bool(res.converged), int(res.evaluations)
         r = estimate_problem(prob, displacements, tensions, self.noise, None,
-                             jax.device_get(values), budget=budget)
+                             jax.device_get(values), budget=budget, total_budget=budget)
         if prob.located and r.converged:  # its x is referred to the estimated X
             self._ref = prob.at([v for v in r.extra["locations"] if v is not None])
         return r.extra["x"], r.converged, int(r.iterations)
