@@ -954,15 +954,16 @@ def _analysis_run(args, robot):
     else:
         print(_summary_text(args.command, summary))
         if args.command == "compare":
-            _other_robot_note(args)
+            _other_robot_note(args, robot)
         print("wrote " + ", ".join(str(f) for f in files))
     return ok
 
 
-def _other_robot_note(args):
-    """A line under the paper's experiments estimated with another robot file."""
-    if (args.csv == str(DATA / "paper_experiments.csv")
-            and Path(args.robot).resolve() != Path(_robot_default(args)).resolve()):
+def _other_robot_note(args, robot):
+    """A line under the paper's experiments estimated with another robot than its prototype."""
+    from .robot import load_robot
+    if args.csv == str(DATA / "paper_experiments.csv") and robot != load_robot(
+            _robot_default(args)):
         print(f"note: these are the readings of the paper's prototype; {args.robot} is not its "
               f"robot file, so the errors also say how far that robot is from the prototype")
 
@@ -1345,7 +1346,7 @@ def _experiments(args, robot) -> bool:
     print(f"mean relative error: ours {summary['mean_relative_error_ours']:.1%}, paper "
           f"{summary['mean_relative_error_paper']:.1%}; {summary['converged']}/"
           f"{summary['rows']} rows converged")
-    _other_robot_note(args)
+    _other_robot_note(args, robot)
     return summary["converged"] == summary["rows"]
 
 
