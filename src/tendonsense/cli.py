@@ -564,11 +564,12 @@ def _check(args, robot) -> None:
     elif cmd == "sweep":
         from .readings import read_parameter_sets
         _check_cluster(args)
-        if args.task_size is not None and args.workers is None and args.scheduler is None:
-            raise UsageError("tendonsense sweep: --task-size goes with --workers or "
-                             "--scheduler (here every set is solved by one batch)")
-        if args.task_size is not None and args.task_size < 1:
-            raise UsageError(f"tendonsense sweep: --task-size {args.task_size}: at least 1")
+        if args.task_size is not None:
+            if args.workers is None and args.scheduler is None:
+                raise UsageError("tendonsense sweep: --task-size goes with --workers or "
+                                 "--scheduler (here every set is solved by one batch)")
+            if args.task_size < 1:
+                raise UsageError(f"tendonsense sweep: --task-size {args.task_size}: at least 1")
         inputs.check_point_forces(robot, _point_forces(args))
         _writable(args.results, "-o/--results")
         args.sets_read = read_parameter_sets(args.sets, robot)
@@ -1143,9 +1144,7 @@ def _log(args, robot) -> bool:
         if to_file:
             out.close()
     skipped = sum(bool(s.error) for s in samples)
-    if skipped > shown:
-        print(f"tendonsense: {args.readings}: {skipped - shown} more rows skipped (the output's "
-              f"note column says why)", file=sys.stderr)
+    _more_skipped(args.readings, skipped - shown)
     if to_file:
         summary = {"samples": len(samples), "converged": good, "skipped": skipped,
                    "output": str(args.estimates)}
@@ -1155,6 +1154,13 @@ def _log(args, robot) -> bool:
             print(f"estimated {len(samples)} samples: {good} converged, {skipped} skipped; "
                   f"wrote {args.estimates}")
     return good == len(samples)
+
+
+def _more_skipped(log, n: int):
+    """The line counting a log's skipped rows beyond those named."""
+    if n > 0:
+        print(f"tendonsense: {log}: {n} more rows skipped (the output's note column says why)",
+              file=sys.stderr)
 
 
 def _logs(args, robot) -> int:
@@ -1183,9 +1189,7 @@ def _logs(args, robot) -> int:
             print(f"tendonsense: {s.error}", file=sys.stderr)
         for row, why in s.skipped_rows:
             print(f"tendonsense: {s.log}: row {row} skipped: {why}", file=sys.stderr)
-        if s.skipped > len(s.skipped_rows):
-            print(f"tendonsense: {s.log}: {s.skipped - len(s.skipped_rows)} more rows "
-                  f"skipped (the output's note column says why)", file=sys.stderr)
+        _more_skipped(s.log, s.skipped - len(s.skipped_rows))
     total = {k: sum(getattr(s, k) for s in done) for k in ("samples", "converged", "skipped")}
     if args.json:
         print(json.dumps({"logs": [s.to_json() for s in done], **total,

@@ -55,10 +55,9 @@ def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, 
             gravity=drive.gravity + z @ prob.unknowns.gravity,
             load_X=drive.load_X + np.asarray(z)[prob.n_magnitudes:] @ prob.unknowns.positions,
             targets=np.zeros(0))
-        left = None if total_budget is None else max(total_budget - used[0], 1)
+        bounds = [b for b in (budget, total_budget and max(total_budget - used[0], 1)) if b]
         res = solve_system(structure, values, (), d, statics_unknowns, q0,
-                           left if budget is None else budget if left is None
-                           else min(budget, left))
+                           min(bounds, default=None))
         used[0] += int(res.evaluations)
         return res, shape_outputs(structure, values, res.x)[2][sel] - y_meas
 
