@@ -112,3 +112,18 @@ def test_calibration_errors_in_mm(monkeypatch, tmp_path):
     plt.close(fig)
     assert "(mm)" in markers.get_ylabel() and "(mm)" in lengths.get_ylabel()
     assert [p.get_height() for p in lengths.patches] == pytest.approx([0.02, 0.03])
+
+
+@pytest.mark.parametrize("converged", [True, False])
+def test_location_profile_of_a_failed_estimate_is_stamped(monkeypatch, tmp_path, solved,
+                                                           converged):
+    monkeypatch.setattr(plotting, "_save", lambda fig, path, tight=True: fig)
+    why = "the refinement of the location did not converge"
+    X = np.linspace(0.05, 0.25, 9)
+    result = dataclasses.replace(solved, converged=converged, extra=dict(
+        note=why, locations=[0.15], location_sigma=[0.01],
+        location_profile={"X": X, "misfit": (X - 0.15) ** 2}))
+    fig = plotting.location_profile(result, tmp_path / "p.png")
+    stamp = [t.get_text() for t in fig.texts]
+    plt.close(fig)
+    assert stamp == ([] if converged else ["NOT CONVERGED", why])

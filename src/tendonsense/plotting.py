@@ -531,7 +531,8 @@ def comparison(table: dict[str, list], path):
 
 def location_profile(result, path):
     """The tendon-length misfit over the X of a force of unknown location (each point the best
-    magnitudes with the force held there), the estimate and its 1-σ band, as a PNG."""
+    magnitudes with the force held there), the estimate and its 1-σ band, as a PNG; stamped
+    NOT CONVERGED (and the reason) when the estimate did not converge."""
     prof = result.extra["location_profile"]
     X, misfit = np.asarray(prof["X"]), np.asarray(prof["misfit"]) * 1e3
     if X.ndim != 1:
@@ -552,6 +553,8 @@ def location_profile(result, path):
     ax.set_title("Where does the force act? Tendon-length misfit over X")
     ax.legend(fontsize=8)
     fig.tight_layout()
+    if not result.converged:
+        _stamp(fig, [ax], result.extra.get("note", ""))
     return _save(fig, path, tight=False)
 
 
