@@ -62,14 +62,21 @@ def main(argv=None):
     # 1. update() latency over a smooth log
     online = OnlineEstimator(problem(robot, ["t1"], [PointForceUnknown(0.25, (0, 0, -1))]))
     online.update(*readings[0])
-    lat, fails = np.zeros(n), 0
+    lat, fails, kind = np.zeros(n), 0, []
     for k, (y, t) in enumerate(readings):
         t0 = time.perf_counter()
         e = online.update(y, t)
         lat[k] = time.perf_counter() - t0
         fails += not e.converged
+        kind.append(e.sliding[0] if e.sliding else "in")
     print(f"update(): p50 {1e3 * np.median(lat):.3f} ms, p99 {1e3 * np.percentile(lat, 99):.3f} "
           f"ms over {n} samples, {fails} not converged")
+    kind = np.array(kind)  # t1's friction: pulled in, paid out, or stuck (its range estimated)
+    for what in ("in", "out", "stuck"):
+        if (kind == what).any():
+            print(f"  t1 {what:5s}: {(kind == what).sum():5d} samples, p50 "
+                  f"{1e3 * np.median(lat[kind == what]):.3f} ms, p99 "
+                  f"{1e3 * np.percentile(lat[kind == what], 99):.3f} ms")
 
     # 2. impossible samples, and a 5,000-row log with 1 % of them
     impossible = [({"t1": 5.0}, {"t1": 2.0}), ({"t1": Y["t1"][10]}, {"t1": 1e9}),
