@@ -370,9 +370,12 @@ def test_a_task_size_without_a_cluster_is_refused(tmp_path, capsys):
     assert not (tmp_path / "r.csv").exists()
 
 
-def test_a_bad_parameter_set_is_named_and_nothing_written(tmp_path, capsys):
-    (tmp_path / "sets.csv").write_text("tension_t1,young_modulus\n2.0,1e6\n2.0,-5\n")
+@pytest.mark.parametrize("column,value,why", [
+    ("young_modulus", "-5", "must be > 0"), ("young_modulus", "2.5", "is in Pa"),  # MPa
+    ("density", "1.34", "in kg/m³"), ("friction_t1", "-0.1", "must be >= 0")])
+def test_a_bad_parameter_set_is_named_and_nothing_written(tmp_path, capsys, column, value, why):
+    (tmp_path / "sets.csv").write_text(f"tension_t1,{column}\n2.0,1000\n2.0,{value}\n")
     code = cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", tmp_path / "r.csv"])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 1 and len(err) == 1 and "set 2" in err[0] and "young_modulus" in err[0]
+    assert code == 1 and len(err) == 1 and f"set 2: {column}: " in err[0] and why in err[0]
     assert not (tmp_path / "r.csv").exists()

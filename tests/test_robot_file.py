@@ -32,6 +32,11 @@ def bad(tmp_path, old, new):
     ("radius = [0.0125, 0.005]", "radius = [12.5, 5]", "lengths are in metres"),
     ("radius = [0.0125, 0.005]", "radius = [0.0125, -0.005]", "got -0.005"),
     ("young_modulus = 1.0e6", "young_modulus = 'soft'", "rod.young_modulus"),
+    ("young_modulus = 1.0e6", "young_modulus = -1.0e6", "rod.young_modulus: must be > 0"),
+    ("young_modulus = 1.0e6", "young_modulus = 2.5", "Young's modulus is in Pa"),  # MPa
+    ("young_modulus = 1.0e6", "young_modulus = 200", "Young's modulus is in Pa"),  # GPa
+    ("density = 1340.0", "density = 1.34", "densities are in kg/m³"),  # g/cm³
+    ("poisson_ratio = 0.5", "poisson_ratio = 0.7", "rod.poisson_ratio: must be in (-1, 0.5]"),
     ("density = 1340.0", "density = 1340.0\ncolour = 'red'", "unknown key"),
     ("disks = 9", "disks = [0.0, 0.1, 0.05, 0.25]", "strictly increasing"),
     ("offset_base = [0, 0.014]", "offset_base = [0, 0.04]", "reachable radius"),
@@ -50,14 +55,23 @@ def test_bad_values_name_key_and_reason(tmp_path, old, new, expect):
     assert expect in bad(tmp_path, old, new)
 
 
+def test_material_at_its_bounds_is_taken(tmp_path):
+    """No gravity (density 0) and the softest and lightest material a rod may have."""
+    for old, new in (("density = 1340.0", "density = 0.0"), ("density = 1340.0", "density = 10"),
+                     ("young_modulus = 1.0e6", "young_modulus = 1000")):
+        p = tmp_path / "robot.toml"
+        p.write_text(PROTOTYPE.read_text().replace(old, new))
+        load_robot(p)
+
+
 def test_missing_key(tmp_path):
     assert "rod.young_modulus: missing" in bad(tmp_path, "young_modulus = 1.0e6\n", "")
 
 
 def test_bad_rotation():
     with pytest.raises(RobotFileError, match="base.rotation"):
-        parse_robot({"rod": {"length": 1, "radius": [0.1, 0.1], "young_modulus": 1,
-                             "poisson_ratio": 0.3, "density": 1},
+        parse_robot({"rod": {"length": 1, "radius": [0.1, 0.1], "young_modulus": 1e6,
+                             "poisson_ratio": 0.3, "density": 1000},
                      "base": {"rotation": [[1, 0, 0], [0, 2, 0], [0, 0, 1]]}})
 
 

@@ -121,6 +121,17 @@ def test_batch_estimation_over_values(log, prototype):
     assert abs(out[0].magnitudes[0] - nominal.magnitudes[0]) > 1e-4
 
 
+@pytest.mark.parametrize("values,why", [
+    ({"young_modulus": [1e6, 2.5]}, "young_modulus: 2.5 Pa is softer"),  # MPa
+    ({"density": [1340.0, 1.34]}, "density: 1.34 kg/m³ is lighter"),  # g/cm³
+    ({"friction": [0.4, -0.1]}, "friction: must be >= 0"),
+    ({"poisson_ratio": [0.5, 0.7]}, "poisson_ratio: must be in (-1, 0.5]")])
+def test_batch_values_follow_the_robot_files_rules(prototype, values, why):
+    from tendonsense.tracking import solve_batch
+    with pytest.raises(ValueError, match=why.replace("(", r"\(").replace("]", r"\]")):
+        solve_batch(prototype, {"t1": [2.0, 2.0]}, values=values)
+
+
 def test_least_squares_scan_converges_noisy_samples_itself(prototype, monkeypatch):
     """A noisy three-tendon log for one unknown: the compiled scan converges every sample
     itself (none is handed to the plain path), to the plain path's minimum. Near a minimum with

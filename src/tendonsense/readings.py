@@ -17,7 +17,7 @@ import numpy as np
 
 from .inputs import SLIDING, Unknown, displacement_error, rest_lengths, tension_error
 from .result import SampleEstimate
-from .robot import Robot
+from .robot import Robot, value_error
 
 AXES = ("x", "y", "z")
 
@@ -469,11 +469,8 @@ class AtomicText(io.TextIOWrapper):
 
 
 
-#: the values a parameter set may give, with the rule each is checked by
-SET_VALUES = {"young_modulus": ("> 0", lambda v: v > 0),
-              "poisson_ratio": ("in (-1, 0.5]", lambda v: -1 < v <= 0.5),
-              "density": (">= 0", lambda v: v >= 0),
-              "friction": (">= 0", lambda v: v >= 0)}
+#: the values a parameter set may give (checked by :func:`~tendonsense.robot.value_error`)
+SET_VALUES = ("young_modulus", "poisson_ratio", "density", "friction")
 LOAD_COLUMNS = ("load_X", "load_fx", "load_fy", "load_fz")
 
 
@@ -532,9 +529,10 @@ def read_parameter_sets(path: str | Path, robot: Robot) -> ParameterSets:
                 raise ReadingsError(f"{path}: set {i + 1}: column {col}: {text!r} is not a "
                                     f"finite number")
             kind, _, name = col.partition("_")
-            rule = SET_VALUES.get(col) or SET_VALUES.get(kind if kind == "friction" else "")
+            why = value_error("friction" if kind == "friction" else col, v) if (
+                col in SET_VALUES or kind == "friction") else None
             error = (tension_error(name, v) if kind == "tension" else
-                     f"{col} = {v:g}: must be {rule[0]}" if rule and not rule[1](v) else
+                     f"{col}: {why}" if why else
                      f"load_X = {v:g} is outside the rod [0, {robot.rod.length:g}]"
                      if col == "load_X" and not 0 <= v <= robot.rod.length else None)
             if error:

@@ -24,6 +24,26 @@ from .rod import Rod
 REACHABLE_RADIUS_FACTOR = 2.0
 #: the longest rod a robot file may describe, m (a longer one is a length in millimetres)
 MAX_LENGTH = 10.0
+#: the softest Young's modulus, Pa, and the lightest density other than 0, kg/m³, a rod may
+#: have (below them a value is in MPa or GPa, or in g/cm³)
+MIN_YOUNG_MODULUS = 1e3
+MIN_DENSITY = 10.0
+
+
+def value_error(name: str, v: float) -> str | None:
+    """Why ``v`` cannot be the robot's ``name`` (``young_modulus``, ``poisson_ratio``,
+    ``density``, ``damping`` or a tendon's ``friction``), or None; ``v`` is finite."""
+    if name == "young_modulus":
+        return (f"must be > 0, got {v:g}" if v <= 0 else
+                f"{v:g} Pa is softer than any material a rod is made of (under "
+                f"{MIN_YOUNG_MODULUS:g} Pa; Young's modulus is in Pa: 1 MPa = 1e6)"
+                if v < MIN_YOUNG_MODULUS else None)
+    if name == "poisson_ratio":
+        return None if -1 < v <= 0.5 else f"must be in (-1, 0.5], got {v:g}"
+    if name == "density" and 0 < v < MIN_DENSITY:
+        return (f"{v:g} kg/m³ is lighter than any solid (under {MIN_DENSITY:g} kg/m³; "
+                f"densities are in kg/m³, water 1000; 0 leaves out the rod's weight)")
+    return f"must be >= 0, got {v:g}" if v < 0 else None
 
 
 class RobotFileError(ValueError):
@@ -376,10 +396,13 @@ def _parse_rod(r: _Reader) -> Rod:
     if disk_radius is not None and disk_radius < widest:
         r.fail("disk_radius", f"spacer disks ({disk_radius:g} m) must be at least as wide as "
                               f"the rod ({widest:g} m)")
-    return Rod(L, tuple(knots), r.number("young_modulus", low=0.0, low_open=True),
-               r.number("poisson_ratio", low=-1.0, high=0.5, low_open=True),
-               r.number("density", low=0.0), disk_radius,
-               r.number("damping", default=0.0, low=0.0))
+    material = {k: r.number(k, default=0.0 if k == "damping" else None)
+                for k in ("young_modulus", "poisson_ratio", "density", "damping")}
+    for k, v in material.items():
+        if why := value_error(k, v):
+            r.fail(k, why)
+    return Rod(L, tuple(knots), material["young_modulus"], material["poisson_ratio"],
+               material["density"], disk_radius, material["damping"])
 
 
 def _parse_tendon(r: _Reader, rod: Rod) -> Tendon:

@@ -21,7 +21,7 @@ from .model import VALUE_NAMES
 from .online import RESCUE_BUDGET, OnlineEstimator
 from .problem import Problem, band  # noqa: F401 (API)
 from .result import SampleEstimate, compact_repr
-from .robot import Robot
+from .robot import Robot, value_error
 from .sliding import Band, FrictionHistory, labels, turning_program
 from .statics import Drive, Unknowns, shape_outputs, solve_system
 
@@ -258,7 +258,8 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     ``tensions``: (N, n_t) array (tendons in file order) or {tendon: (N,) array}.
     ``point_forces``: [(X, f), ...] where X may be (N,) and f (N, 3). ``values``: {name: (N,)}
     for ``young_modulus``, ``poisson_ratio``, ``density``, ``friction`` ((N,) one μ for every
-    tendon, or (N, n_t)). The samples are ordered along their first principal direction and
+    tendon, or (N, n_t)), each under the robot file's rules (``ValueError`` naming the value
+    otherwise). The samples are ordered along their first principal direction and
     solved by the compiled tracker, each warm-started from its neighbour, on ``workers``
     threads; a sample it cannot converge is solved again on its own from the straight rod
     with load continuation.
@@ -365,4 +366,7 @@ def varied_values(base, values, n: int) -> dict[str, np.ndarray]:
                              f"sample ({n})") from None
         if not np.all(np.isfinite(varied[k])):
             raise ValueError(f"batch: {k} must be finite")
+        for v in np.unique(varied[k]):
+            if why := value_error(k, float(v)):
+                raise ValueError(f"batch: {k}: {why}")
     return varied
