@@ -46,6 +46,7 @@ def refused_before_jax(*args, cwd=None) -> tuple[int, str, bool]:
 READINGS_SLIPS = [  # (displacements, tensions, words the message must have)
     ({"t1": -0.005}, {}, "tension t1: missing"),
     ({"t1": -0.005}, {"t1": -2.1}, "tension t1 = -2.1 N is negative"),
+    ({"t1": -0.005}, {"t1": 204.0}, "tensions are in newtons"),  # gram-force typed
     ({"t1": -5.0}, {"t1": 2.1}, "pulls in more than the tendon's whole length"),
     ({"t1": 0.3}, {"t1": 2.1}, "pays out more than the tendon's whole length"),
     ({"t1": float("nan")}, {"t1": 2.1}, "displacement t1"),
@@ -62,7 +63,7 @@ def test_a_bad_reading_is_refused_by_the_python_api(prototype, y, T, words):
         estimate(prototype, y, T, [TIP])
 
 
-@pytest.mark.parametrize("y, T, words", READINGS_SLIPS[:4])
+@pytest.mark.parametrize("y, T, words", READINGS_SLIPS[:5])
 def test_a_bad_reading_is_marked_by_the_online_estimator_and_a_series(prototype, y, T, words):
     online = OnlineEstimator(problem(prototype, ["t1"], [TIP]))
     est = online.update(y, T)
@@ -323,14 +324,15 @@ def test_the_analyses_run_from_any_folder(tmp_path):
 # ------------------------------------------------------ a result that is not a solution
 
 def test_a_solve_that_did_not_converge_is_not_dressed_as_one(tmp_path):
-    p = cli("solve", PROTOTYPE, "--tension", "t1=2000", cwd=tmp_path)
+    p = cli("solve", PROTOTYPE, "--tension", "t1=2", "--point-force=0.25,0,0,-100", cwd=tmp_path)
     assert p.returncode == 3
     head, *rest = p.stdout.splitlines()
     assert "NOT CONVERGED: " in head and len(head.split("NOT CONVERGED: ")[1]) > 20
     assert "residual" in head or "strain" in head
     assert not any("markers" in line or "tip (X" in line for line in rest)
     assert list(tmp_path.iterdir()) == []  # nothing written without --plot
-    p = cli("solve", PROTOTYPE, "--tension", "t1=2000", "--json", "--plot", tmp_path / "s.png")
+    p = cli("solve", PROTOTYPE, "--tension", "t1=2", "--point-force=0.25,0,0,-100", "--json",
+            "--plot", tmp_path / "s.png")
     out = json.loads(p.stdout)
     assert out["converged"] is False and out["note"] and p.returncode == 3
     assert (tmp_path / "s.png").stat().st_size > 10_000  # asked for: drawn, stamped
@@ -377,20 +379,23 @@ def test_a_skipped_row_keeps_its_time(prototype):
     assert parse_row(51, ["soon", "2.0", "0", "0", "-0.003"], columns, prototype).time is None
 
 
-def test_a_length_column_in_millimetres_is_refused_before_jax(tmp_path):
-    """Lengths typed in mm: the log is refused up front in one line (its rows would each be
-    skipped, and the few under the tendon's length estimated as if in metres)."""
+@pytest.mark.parametrize("column, scale, unit", [("displacement_t1", 1000, "metres"),
+                                                 ("tension_t1", 1000 / 9.80665, "newtons")])
+def test_a_column_in_another_unit_is_refused_before_jax(tmp_path, column, scale, unit):
+    """Lengths typed in mm or tensions in gram-force: the log is refused up front in one line
+    (its rows would each be skipped, or worse, the few that pass estimated: with tensions in
+    gF half the tutorial's rows "converged" to a tip force of 42–86 N)."""
     rows = (ROOT / "examples" / "tutorial" / "readings.csv").read_text().splitlines()
     header = rows[0].split(",")
-    k = header.index("displacement_t1")
-    mm = [rows[0]] + [",".join(c if j != k else repr(1000 * float(c))
-                               for j, c in enumerate(r.split(","))) for r in rows[1:]]
-    path = tmp_path / "mm.csv"
-    path.write_text("\n".join(mm) + "\n")
+    k = header.index(column)
+    other = [rows[0]] + [",".join(c if j != k else repr(scale * float(c))
+                                  for j, c in enumerate(r.split(","))) for r in rows[1:]]
+    path = tmp_path / "other.csv"
+    path.write_text("\n".join(other) + "\n")
     rc, err, jax_loaded = refused_before_jax("estimate", PROTOTYPE, "--readings", path,
                                              "--unknown", "0.25,0,0,-1", "-o", tmp_path / "e.csv")
     assert rc == 1 and not jax_loaded and len(err.strip().splitlines()) == 1, err
-    assert "displacement_t1" in err and "metres" in err and not (tmp_path / "e.csv").exists()
+    assert column in err and f"are in {unit}" in err and not (tmp_path / "e.csv").exists()
 
 
 def test_a_file_log_names_its_first_skipped_rows_and_counts_the_rest(tmp_path):

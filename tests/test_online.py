@@ -30,7 +30,7 @@ def test_update_follows_the_readings_and_survives_bad_ones(prototype, readings):
     F, T, y = readings
     online = OnlineEstimator(problem(prototype, ["t1"], [PointForceUnknown(0.25, (0, 0, -1))]))
     bad = {3: (-5.0, T[3], "pulls in more"), 6: (y[6], -1.0, "negative"),
-           8: (y[8], 1e6, "range")}
+           8: (y[8], 1e6, "tensions are in newtons"), 9: (-0.1, T[9], "converge")}
     for k in range(len(F)):
         yk, Tk, why = bad.get(k, (y[k], T[k], None))
         t0 = time.perf_counter()
@@ -46,9 +46,11 @@ def test_update_follows_the_readings_and_survives_bad_ones(prototype, readings):
             assert spent < 1.0  # bounded work (the benchmark measures the milliseconds)
 
 
-def test_a_tension_the_material_cannot_take_is_not_converged(prototype):
-    r = solve(prototype, {"t1": 1e6})
-    assert not r.converged
+def test_a_tension_the_material_cannot_take_is_refused(prototype):
+    with pytest.raises(ValueError, match="would shorten the rod by more than half"):
+        solve(prototype, {"t1": 40.0})  # E·A / 2 = 39.3 N at the tip
+    assert solve(prototype, {"t1": 39.0}).converged
+    assert not solve(prototype, {"t1": 2.0}, [(0.25, (0, 0, -100.0))]).converged
 
 
 def stream(args, text):

@@ -161,7 +161,7 @@ def test_a_log_scan_stops_at_a_failure_and_skips_padding(log):
     from tendonsense.fastpath import stacked_drives, tracker
     prob, F, disp, ten = log
     T, Y = map(np.array, zip(*(prob.readings(d, t) for d, t in zip(disp[:8], ten[:8]))))
-    T[3:5, 0] = 2000.0  # a unit slip: no equilibrium within the model's strain range
+    Y[3:5, 0] = -0.1  # t1 pulled in 10 cm at 2–3 N: no equilibrium of the model
     model, meas = prob.model, list(prob.measured)
     track = tracker(model.structure, prob.measured, prob.n_z, (0,), until_failure=True)
 
@@ -183,23 +183,23 @@ def test_a_log_scan_stops_at_a_failure_and_skips_padding(log):
 
 
 def test_a_series_goes_on_after_failed_samples(log):
-    """Samples the scan fails (a unit slip: 2000 N, no equilibrium within the model's strain
-    range), in a row and across a chunk's border, are marked not converged, and every other
+    """Samples the scan fails (t1 pulled in 10 cm at 2–3 N: no equilibrium of the model), in
+    a row and across a chunk's border, are marked not converged, and every other
     sample is estimated as without them: on the scan (`estimate_series`, against the truth)
     and following the friction history (a log, against the log without those rows)."""
     from tendonsense.logs import estimate_readings
     from tendonsense.readings import Sample
     prob, F, disp, ten = log
     bad = [3, 4, 15, 16]  # chunks of 16: rows 15 and 16 on either side of a border
-    slipped = [{"t1": 2000.0} if k in bad else t for k, t in enumerate(ten)]
-    series = estimate_series(prob, disp, slipped, chunk=16)
+    slipped = [{"t1": -0.1} if k in bad else d for k, d in enumerate(disp)]
+    series = estimate_series(prob, slipped, ten, chunk=16)
     assert [k for k, e in enumerate(series) if not e.converged] == bad
     good = [k for k in range(len(F)) if k not in bad]
     np.testing.assert_allclose([series[k].magnitudes[0] for k in good], F[good], rtol=1e-7)
 
     def logged(rows):
-        samples = [Sample(j + 1, 0.01 * k, {"t1": slipped[k]["t1"], "t2": 0.0, "t3": 0.0},
-                          disp[k], {}) for j, k in enumerate(rows)]
+        samples = [Sample(j + 1, 0.01 * k, {"t1": ten[k]["t1"], "t2": 0.0, "t3": 0.0},
+                          slipped[k], {}) for j, k in enumerate(rows)]
         return estimate_readings(prob.robot, ["t1"], samples,
                                  [PointForceUnknown(0.25, (0, 0, -1))])
 

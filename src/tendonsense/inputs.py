@@ -4,7 +4,9 @@ calibration). No JAX: the command line checks everything before it starts a solv
 
 The rules for a reading:
 - a tendon is named by the robot file; a value is a finite number;
-- a tension is ≥ 0 (a tendon cannot push); a slack tendon is a tension of 0, said explicitly
+- a tension is ≥ 0 (a tendon cannot push) and shortens the rod by less than half where it is
+  thinnest (T < E·A / 2: a value in gram-force, for one, does not); a slack tendon is a
+  tension of 0, said explicitly
   in a file (a ``tension_<name>`` column for every tendon), or by leaving the tendon out of a
   command line or a Python mapping;
 - a tendon whose length change is measured needs its tension measured too;
@@ -51,12 +53,32 @@ def rest_lengths(robot: Robot) -> np.ndarray:
     return out
 
 
-def tension_error(name: str, T: float) -> str | None:
-    """Why tension ``T`` (N) of tendon ``name`` cannot be a reading, or None."""
+#: a tension that alone would shorten the rod by more than this fraction where it is thinnest
+#: (T / E·A) is not a reading
+MAX_COMPRESSION = 0.5
+
+
+@lru_cache(maxsize=64)
+def axial_stiffness(robot: Robot) -> dict[str, float]:
+    """E·A (N) of the thinnest section of the rod between its base and each tendon's anchor,
+    by tendon name: a tension T shortens it by about T / E·A there."""
+    rod = robot.rod
+    knots = np.array([x for x, _ in rod.radius_knots])
+    return {t.name: float(rod.young_modulus * rod.area(
+        np.append(knots[knots <= t.disks[-1]], t.disks[-1])).min()) for t in robot.tendons}
+
+
+def tension_error(robot: Robot, name: str, T: float) -> str | None:
+    """Why tension ``T`` (N) of the robot's tendon ``name`` cannot be a reading, or None."""
     if not math.isfinite(T):
         return f"tension {name} = {T}: not a finite number"
     if T < 0:
         return f"tension {name} = {T:g} N is negative (a tendon cannot push; slack is 0)"
+    EA = axial_stiffness(robot)[name]
+    if T > MAX_COMPRESSION * EA:
+        return (f"tension {name} = {T:g} N would shorten the rod by more than half where it is "
+                f"thinnest (T = {T / EA:.2g} E·A, E·A = {EA:.3g} N there): tensions are in "
+                f"newtons")
     return None
 
 
@@ -87,7 +109,7 @@ def tensions(robot: Robot, values: Mapping[str, float] | None) -> np.ndarray:
     """Tensions (N) per tendon by the rules of this module; tendons not named are slack."""
     T = tendon_vector(robot, values, "tension")
     for name, v in zip(robot.tendon_names, T):
-        if error := tension_error(name, v):
+        if error := tension_error(robot, name, v):
             raise ValueError(error)
     return T
 

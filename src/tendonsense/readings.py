@@ -15,7 +15,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .inputs import SLIDING, Unknown, displacement_error, rest_lengths, tension_error
+from .inputs import (SLIDING, Unknown, axial_stiffness, displacement_error, rest_lengths,
+                     tension_error)
 from .result import SampleEstimate
 from .robot import Robot, value_error
 
@@ -142,7 +143,7 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
                 error = _not_finite(col, text)
                 break
             kind, _, name = col.partition("_")
-            error = (tension_error(name, v) if kind == "tension" else displacement_error(
+            error = (tension_error(robot, name, v) if kind == "tension" else displacement_error(
                 name, v, columns.rest[robot.tendon_names.index(name)])
                 if kind == "displacement" else None)
             if error:
@@ -177,14 +178,28 @@ def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sampl
 
 
 def _check_units(path, columns: Columns, robot: Robot, rows):
-    """A length column most of whose rows change the tendon by more than its whole length is
-    in the wrong unit: the log is refused (its rows would each be skipped, or worse, the few
-    that pass estimated)."""
-    for name in columns.measured:
-        k = columns.header.index(f"displacement_{name}")
-        rest = columns.rest[robot.tendon_names.index(name)]
+    """A length column most of whose rows change the tendon by more than its whole length, or
+    a tension column most of whose rows would crush the rod, is in the wrong unit: the log is
+    refused (its rows would each be skipped, or worse, the few that pass estimated)."""
+    def values(col):
+        k = columns.header.index(col)
         v = np.array([_number(r[k]) for r in rows if len(r) == len(columns.header)])
-        v = v[np.isfinite(v)]
+        return v[np.isfinite(v)]
+
+    for name in robot.tendon_names:
+        if f"tension_{name}" not in columns.header:
+            continue
+        v = values(f"tension_{name}")
+        over = sum(tension_error(robot, name, T) is not None for T in v if T >= 0)
+        if over >= 3 and over > v.size / 2:
+            EA = axial_stiffness(robot)[name]
+            raise ReadingsError(
+                f"{path}: column tension_{name}: {over} of {v.size} rows would shorten the rod "
+                f"by more than half where it is thinnest (E·A = {EA:.3g} N): tensions are in "
+                f"newtons")
+    for name in columns.measured:
+        rest = columns.rest[robot.tendon_names.index(name)]
+        v = values(f"displacement_{name}")
         over = sum(displacement_error(name, y, rest) is not None for y in v)
         if over >= 3 and over > v.size / 2:
             raise ReadingsError(
@@ -288,7 +303,7 @@ def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
         tensions = {n: num(f"tension_{n}") for n in robot.tendon_names}
         lengths = {n: v for n in measured
                    if (v := num(f"displacement_{n}", required=False)) is not None}
-        for error in ([tension_error(n, v) for n, v in tensions.items()]
+        for error in ([tension_error(robot, n, v) for n, v in tensions.items()]
                       + [displacement_error(n, v, rest[robot.tendon_names.index(n)])
                          for n, v in lengths.items()]):
             if error:
@@ -531,7 +546,7 @@ def read_parameter_sets(path: str | Path, robot: Robot) -> ParameterSets:
             kind, _, name = col.partition("_")
             why = value_error("friction" if kind == "friction" else col, v) if (
                 col in SET_VALUES or kind == "friction") else None
-            error = (tension_error(name, v) if kind == "tension" else
+            error = (tension_error(robot, name, v) if kind == "tension" else
                      f"{col}: {why}" if why else
                      f"load_X = {v:g} is outside the rod [0, {robot.rod.length:g}]"
                      if col == "load_X" and not 0 <= v <= robot.rod.length else None)
@@ -606,7 +621,7 @@ def read_tension_schedule(path: str | Path,
                 raise ReadingsError(f"{path}: row {i}, {col}: not a number: {text!r}") from None
             if not math.isfinite(data[i - 1, j]):
                 raise ReadingsError(f"{path}: row {i}, {col}: not a finite number")
-            if col != "time" and (error := tension_error(col[8:], data[i - 1, j])):
+            if col != "time" and (error := tension_error(robot, col[8:], data[i - 1, j])):
                 raise ReadingsError(f"{path}: row {i}: {error}")
     t = data[:, header.index("time")]
     if np.any(np.diff(t) <= 0) or t[0] < 0:

@@ -131,7 +131,7 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
         e = tensions.get(name, 0.0)
         values = np.asarray(e[1] if _is_series(e) else e, float)
         for v in values.ravel():
-            if error := inputs.tension_error(name, float(v)):
+            if error := inputs.tension_error(robot, name, float(v)):
                 raise ValueError(error)
         T_entries.append(e)
     T_times, T = _table(T_entries, 1, "tension")

@@ -16,7 +16,7 @@ from .estimation import estimate_problem
 from .fastpath import (MAX_EVALUATIONS, MAX_JACOBIANS, Carry, Track,  # noqa: F401 (API)
                        follower, stacked_drives, stepper, tracker, unpack_row)
 from .forward import model_for, why_not
-from .inputs import Noise, tendon_vector
+from .inputs import Noise, tendon_vector, tension_error
 from .model import VALUE_NAMES
 from .online import RESCUE_BUDGET, OnlineEstimator
 from .problem import Problem, band  # noqa: F401 (API)
@@ -341,8 +341,10 @@ def batch_inputs(robot: Robot, base, tensions, point_forces, values):
                  axis=1) if point_forces else np.zeros((n, 0, 3))
     if not (np.all(np.isfinite(T)) and np.all(np.isfinite(X)) and np.all(np.isfinite(F))):
         raise ValueError("batch: tensions and point forces must be finite")
-    if np.any(T < 0):
-        raise ValueError("batch: a tension is negative (a tendon cannot push)")
+    for j, name in enumerate(names):
+        if error := tension_error(robot, name, float(T[:, j].min(initial=0.0))) or \
+                tension_error(robot, name, float(T[:, j].max(initial=0.0))):
+            raise ValueError(f"batch: {error}")
     if np.any((X < 0) | (X > robot.rod.length)):
         raise ValueError(f"batch: a point force X is outside the rod [0, {robot.rod.length:g}]")
     return T, X, F, varied_values(base, values, n)
