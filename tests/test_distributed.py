@@ -371,11 +371,13 @@ def test_a_task_size_without_a_cluster_is_refused(tmp_path, capsys):
     assert not (tmp_path / "r.csv").exists()
 
 
-@pytest.mark.parametrize("column,value,why", [
-    ("young_modulus", "-5", "must be > 0"), ("young_modulus", "2.5", "is in Pa"),  # MPa
-    ("density", "1.34", "in kg/m³"), ("friction_t1", "-0.1", "must be >= 0")])
-def test_a_bad_parameter_set_is_named_and_nothing_written(tmp_path, capsys, column, value, why):
-    (tmp_path / "sets.csv").write_text(f"tension_t1,{column}\n2.0,1000\n2.0,{value}\n")
+@pytest.mark.parametrize("column,good,value,why", [
+    ("young_modulus", "1000", "-5", "must be > 0"), ("young_modulus", "1e6", "2.5", "is in Pa"),
+    ("density", "10", "1.34", "in kg/m³"), ("friction_t1", "0", "-0.1", "must be >= 0"),
+    ("friction", "2", "40", "not a percentage")])
+def test_a_bad_parameter_set_is_named_and_nothing_written(tmp_path, capsys, column, good, value,
+                                                          why):
+    (tmp_path / "sets.csv").write_text(f"tension_t1,{column}\n2.0,{good}\n2.0,{value}\n")
     code = cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", tmp_path / "r.csv"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and len(err) == 1 and f"set 2: {column}: " in err[0] and why in err[0]

@@ -13,7 +13,7 @@ import pytest
 
 from conftest import PROTOTYPE, ROOT
 from tendonsense import inputs
-from tendonsense.estimation import PointForceUnknown, estimate, problem
+from tendonsense.estimation import Noise, PointForceUnknown, estimate, problem
 from tendonsense.forward import forward_kinematics, solve
 from tendonsense.identification import Snapshot, SnapshotError, identify
 from tendonsense.online import OnlineEstimator
@@ -75,6 +75,30 @@ def test_a_bad_reading_is_marked_by_the_online_estimator_and_a_series(prototype,
     assert not series[1].converged and words in series[1].note
 
 
+@pytest.mark.parametrize("call, words", [
+    (lambda r: solve(r, [2.0]), "tensions: a mapping {tendon: value} such as {'t1': 2.0}, not a "
+                                "list"),
+    (lambda r: solve(r, {"t1": 2.0}, [0.25, 0, 0, -0.1]), "point force 1: a pair (X, (fx, fy, "
+                                                          "fz)), got 0.25"),
+    (lambda r: estimate(r, [-0.005], {"t1": 2.1}, [TIP]), "displacements: a mapping"),
+    (lambda r: estimate(r, {"t1": -0.005}, {"t1": 2.1}, TIP), "unknowns: a list such as "
+                                                              "[PointForceUnknown(…)], not a "
+                                                              "PointForceUnknown"),
+    (lambda r: problem(r, "t1", [TIP]), "measured tendons: a list such as ['t1'], not a str"),
+    (lambda r: identify(r, [Snapshot(dict(t1=0.0), {"tip": np.zeros(3)})], "young_modulus"),
+     "parameters to fit: a list such as ('young_modulus',), not a string"),
+    (lambda r: Noise(length=-1e-4), "length noise: must be a positive number of metres"),
+    (lambda r: Noise(length=float("nan")), "length noise"),
+    (lambda r: Noise(tension=2.5), "tension noise: relative, must be a fraction in (0, 1)"),
+])
+def test_the_python_api_says_what_it_expected(prototype, call, words):
+    """A value of the wrong kind is named with what was expected, not a Python internal
+    (an AttributeError, "cannot unpack", "no such tendon t")."""
+    with pytest.raises(ValueError) as e:
+        call(prototype)
+    assert words in str(e.value)
+
+
 def test_forward_problems_refuse_a_pushing_tendon_and_an_impossible_length(prototype):
     with pytest.raises(ValueError, match="tension t1 = -2 N is negative"):
         solve(prototype, {"t1": -2.0})
@@ -104,6 +128,20 @@ def test_a_file_says_every_tendons_tension(tmp_path):
                      "0,0,0.24,0,-0.05\n")
     rc, err, jax_loaded = refused_before_jax("identify", PROTOTYPE, "--snapshots", snaps)
     assert rc == 1 and "no column tension_t1" in err and not jax_loaded
+
+
+def test_snapshots_in_millimetres_are_refused(prototype, tmp_path):
+    """Marker positions typed in mm: refused by the snapshot's row before JAX, and through the
+    Python API (it ran 50 iterations to μ = 1.9e10)."""
+    snaps = tmp_path / "snaps.csv"
+    snaps.write_text("tension_t1,tension_t2,tension_t3,marker_tip_x,marker_tip_y,marker_tip_z\n"
+                     "0,0,0,240,0,-50\n")
+    rc, err, jax_loaded = refused_before_jax("identify", PROTOTYPE, "--snapshots", snaps)
+    assert rc == 1 and not jax_loaded and len(err.strip().splitlines()) == 1, err
+    assert "snapshot row 1: marker tip at 245 m from the base" in err and "metres" in err
+    snap = Snapshot(dict(t1=0.0, t2=0.0, t3=0.0), {"tip": np.array([240.0, 0.0, -50.0])})
+    with pytest.raises(SnapshotError, match="snapshot 1: marker tip at 245 m .* are in metres"):
+        identify(prototype, [snap], ("young_modulus",))
 
 
 def test_a_log_row_breaking_a_rule_is_marked_and_the_rest_estimated(prototype, tmp_path):
@@ -182,6 +220,23 @@ def test_several_logs_name_their_skipped_rows(tmp_path):
         f"tendonsense: {bad}: row 2 skipped: tension t1 = -1 N is negative (a tendon cannot "
         f"push; slack is 0)", "tendonsense: not every solve converged (marked converged = false)"]
     assert "1 skipped" in p.stdout
+
+
+def test_a_logs_summary_counts_the_rows_not_converged(tmp_path):
+    """A row with no equilibrium (t1 pulled in 10 cm) is counted as not converged, not left
+    out of the summary: one log into a file, and several into a folder."""
+    rows = (ROOT / "examples" / "tutorial" / "readings.csv").read_text().splitlines()[:6]
+    cells = rows[2].split(",")
+    cells[rows[0].split(",").index("displacement_t1")] = "-0.1"
+    log = tmp_path / "log.csv"
+    log.write_text("\n".join([*rows[:2], ",".join(cells), *rows[3:]]) + "\n")
+    p = cli("estimate", PROTOTYPE, "--readings", log, "--unknown", "0.25,0,0,-1",
+            "-o", tmp_path / "e.csv")
+    assert p.returncode == 3 and "5 samples: 4 converged, 1 not converged, 0 skipped" in p.stdout
+    p = cli("estimate", PROTOTYPE, "--readings", log, ROOT / "examples" / "tutorial" /
+            "readings.csv", "--unknown", "0.25,0,0,-1", "-o", f"{tmp_path / 'out'}/")
+    assert p.returncode == 3 and "(305 samples: 304 converged, 1 not converged, 0 skipped)" \
+        in p.stdout, p.stdout
 
 
 def test_a_live_log_into_a_file(tmp_path):
@@ -277,6 +332,12 @@ def test_a_header_only_log_is_an_error(tmp_path):
       "0.25,0,0,-1"), 2, "--readings given twice"),
     (("solve", PROTOTYPE, "--tension", "t1=2", "--plot", "a.png", "--plot", "b.png"), 2,
      "--plot given twice"),
+    (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--tension", "t1=2", "--unknown",
+      "0.25,0,0,-1", "--length-noise", "-1e-4"), 2,
+     "--length-noise: must be a positive number, got '-1e-4'"),  # not taken for an option
+    (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--tension", "t1=2", "--unknown",
+      "0.25,0,0,-1", "--tension-noise", "2.5"), 2, "must be a fraction under 1"),  # per cent
+    (("solve", PROTOTYPE, "--tension", "t1=204"), 1, "tensions are in newtons"),  # gF
     (("estimate", PROTOTYPE, "--readings", ROOT / "examples" / "tutorial" / "readings.csv",
       ROOT / "examples" / "sweep_sets.csv", "--unknown", "0.25,0,0,-1", "-o", "e.csv"), 2,
      "several logs write one output each into a folder: -o e.csv/ makes it"),

@@ -37,6 +37,8 @@ def bad(tmp_path, old, new):
     ("young_modulus = 1.0e6", "young_modulus = 200", "Young's modulus is in Pa"),  # GPa
     ("density = 1340.0", "density = 1.34", "densities are in kg/m³"),  # g/cm³
     ("poisson_ratio = 0.5", "poisson_ratio = 0.7", "rod.poisson_ratio: must be in (-1, 0.5]"),
+    ("friction = 0.4", "friction = 40", "not a percentage"),
+    ("acceleration = [0.0, 0.0, -9.81]", "acceleration = [0.0, 0.0, -9810]", "are in m/s²"),
     ("density = 1340.0", "density = 1340.0\ncolour = 'red'", "unknown key"),
     ("disks = 9", "disks = [0.0, 0.1, 0.05, 0.25]", "strictly increasing"),
     ("offset_base = [0, 0.014]", "offset_base = [0, 0.04]", "reachable radius"),

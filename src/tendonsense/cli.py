@@ -47,7 +47,11 @@ UNKNOWN_HELP = ("an unknown load: 'X,DX,DY,DZ' a force of unknown size along the
                 "the robot's weight; repeatable")
 
 #: options whose values may start with a minus sign ("--point-force -0.1,0,0,-1")
-VALUE_OPTIONS = ("--point-force", "--unknown", "--tension", "--displacement")
+VALUE_OPTIONS = ("--point-force", "--unknown", "--tension", "--displacement", "--length-noise",
+                 "--tension-noise", "--marker-noise", "--noise-length", "--noise-tension",
+                 "--duration", "--output-dt", "--max-step", "--force-walk", "--max-force",
+                 "--max-tension", "--points", "--seed", "--task-size", "--workers", "--cpu",
+                 "--port")
 
 
 class UsageError(Exception):
@@ -157,6 +161,14 @@ def _positive(text: str) -> float:
         raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
     if not (v > 0 and v < float("inf")):
         raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return v
+
+
+def _fraction(text: str) -> float:
+    v = _positive(text)
+    if v >= 1:
+        raise argparse.ArgumentTypeError(f"relative, must be a fraction under 1 (0.01 is 1 %), "
+                                         f"got {text!r}")
     return v
 
 
@@ -286,7 +298,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--length-noise", type=_positive, default=1e-4, metavar="M",
                    help="standard deviation of the tendon length sensors in metres, for the "
                         "uncertainty band (default 0.0001 m = 0.1 mm)")
-    p.add_argument("--tension-noise", type=_positive, default=0.025 / 3, metavar="FRACTION",
+    p.add_argument("--tension-noise", type=_fraction, default=0.025 / 3, metavar="FRACTION",
                    help="standard deviation of the tension sensors as a fraction of the "
                         "reading (default 0.00833, i.e. 2.5 %% / 3)")
     p.add_argument("--dynamic", action="store_true",
@@ -642,6 +654,9 @@ def _check_simulate(args, robot):
     for flag, v in (("--noise-length", args.noise_length), ("--noise-tension", args.noise_tension)):
         if not (0 <= v < float("inf")):
             raise ValueError(f"{flag} {v:g}: must be a finite number >= 0")
+    if args.noise_tension >= 1:
+        raise ValueError(f"--noise-tension {args.noise_tension:g}: relative, must be a fraction "
+                         f"under 1 (0.01 is 1 %)")
     if args.output_dt > args.duration:
         raise ValueError(f"--output-dt {args.output_dt:g} s is longer than --duration "
                          f"{args.duration:g} s")
@@ -1151,9 +1166,15 @@ def _log(args, robot) -> bool:
         if args.json:
             print(json.dumps(summary))
         else:
-            print(f"estimated {len(samples)} samples: {good} converged, {skipped} skipped; "
-                  f"wrote {args.estimates}")
+            print(f"estimated {_counts(len(samples), good, skipped)}; wrote {args.estimates}")
     return good == len(samples)
+
+
+def _counts(samples: int, converged: int, skipped: int) -> str:
+    """"N samples: C converged, F not converged, S skipped" (F only if there are any)."""
+    failed = samples - converged - skipped
+    return (f"{samples} samples: {converged} converged, "
+            + (f"{failed} not converged, " if failed else "") + f"{skipped} skipped")
 
 
 def _more_skipped(log, n: int):
@@ -1195,8 +1216,8 @@ def _logs(args, robot) -> int:
         print(json.dumps({"logs": [s.to_json() for s in done], **total,
                           "failed": [s.log for s in failed], "output": str(out)}))
     else:
-        print(f"estimated {len(done) - len(failed)} of {len(done)} logs ({total['samples']} "
-              f"samples: {total['converged']} converged, {total['skipped']} skipped)"
+        print(f"estimated {len(done) - len(failed)} of {len(done)} logs ("
+              f"{_counts(total['samples'], total['converged'], total['skipped'])})"
               + (f"; {len(failed)} failed" if failed else "") + f"; wrote into {out}")
     if failed:
         return 1
@@ -1268,8 +1289,8 @@ def _stream(args, robot, noise) -> bool:
         summary = {"samples": count["rows"], "converged": count["converged"],
                    "skipped": count["skipped"], "output": str(args.estimates)}
         print(json.dumps(summary) if args.json else
-              f"estimated {count['rows']} samples: {count['converged']} converged, "
-              f"{count['skipped']} skipped; wrote {args.estimates}")
+              f"estimated {_counts(count['rows'], count['converged'], count['skipped'])}; "
+              f"wrote {args.estimates}")
     return count["converged"] == count["rows"]
 
 
@@ -1481,7 +1502,9 @@ def _simulate(args, robot) -> bool:
                             given="given: the tensions over time (top)"
                             + "".join(f", {f}" for f in _forces_text(args))
                             + (", from the equilibrium at t = 0" if args.from_equilibrium
-                               else ", from the straight rod at rest"))
+                               else ", from the straight rod at rest")
+                            + ("; drawn without the read-out noise of the log"
+                               if args.noise_length or args.noise_tension else ""))
     if args.json:
         print(json.dumps({"time": sim.time.tolist(),
                           "markers": {m: p.tolist() for m, p in sim.markers.items()},

@@ -137,6 +137,7 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
     ``magnitudes`` (N for point forces, a scale for gravity), their 1-σ band ``sigma`` for
     the sensor ``noise`` and ``sensitivity``: ∂magnitudes/∂measurement per measurement.
     """
+    inputs.tendon_vector(robot, displacements, "displacement")  # a mapping of the robot's names
     prob = problem(robot, list(displacements), unknowns, point_forces)
     if not sliding:
         return estimate_problem(prob, displacements, tensions, noise, x0)

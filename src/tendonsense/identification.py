@@ -115,8 +115,8 @@ def _check(robot: Robot, snapshots: Sequence[Snapshot], params: Sequence[str]):
         for m, p in s.markers.items():
             if m not in robot.marker_names:
                 raise SnapshotError(f"snapshot {k}: no marker {m!r} in the robot")
-            if np.shape(p) != (3,) or not np.all(np.isfinite(p)):
-                raise SnapshotError(f"snapshot {k}: marker {m!r} is not 3 finite numbers")
+            if error := inputs.marker_error(robot, m, p):
+                raise SnapshotError(f"snapshot {k}: {error}")
         for n, v in s.displacements.items():
             if n not in robot.tendon_names:
                 raise SnapshotError(f"snapshot {k}: no tendon {n!r} in the robot")
@@ -334,7 +334,7 @@ def _what(snapshots) -> str:
 
 
 #: a fit whose χ² is above this quantile of the χ² distribution of its degrees of freedom
-#: is said not to explain the data
+#: is said not to explain the data (and one below 1 − it, to have less noise than assumed)
 MISFIT_QUANTILE = 0.999
 
 
@@ -343,12 +343,17 @@ def misfit_of(chi2: float, n: int, n_params: int) -> tuple[float | None, str]:
     freedom (about 1 where the model explains the data and the noise is as assumed; None
     without a degree of freedom), and a warning where ``chi2`` is above the
     :data:`MISFIT_QUANTILE` quantile of its χ² distribution (the 1-σ values assume the noise
-    alone)."""
+    alone) or below the 1 − :data:`MISFIT_QUANTILE` one (the noise assumed is too large)."""
     from scipy.stats import chi2 as distribution
     dof = n - n_params
     if dof < 1:
         return None, ""
     ratio = float(np.sqrt(chi2 / dof))
+    if chi2 < distribution.ppf(1 - MISFIT_QUANTILE, dof):
+        return ratio, (f"the residuals are {ratio:.2g} times the noise assumed, far less than "
+                       f"that noise gives: the noise is smaller than assumed (the marker and "
+                       f"length noise given, in metres), and the ± values, which assume it, "
+                       f"are too wide")
     if chi2 <= distribution.ppf(MISFIT_QUANTILE, dof):
         return ratio, ""
     return ratio, (f"the residuals are {ratio:.2g} times the noise assumed, more than noise "
@@ -379,6 +384,8 @@ def identify(robot: Robot, snapshots: Sequence[Snapshot],
 
     With ``crossval``, also refit without each snapshot in turn and predict it
     (:class:`LeftOut`): whether the calibration generalises beyond the poses it saw."""
+    if isinstance(params, str):
+        raise SnapshotError(f"parameters to fit: a list such as ({params!r},), not a string")
     params = tuple(dict.fromkeys(params))
     _check(robot, snapshots, params)
     setup = _setup(robot, snapshots, params, marker_noise, length_noise)

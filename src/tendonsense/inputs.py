@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Mapping, Sequence
+from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -93,9 +93,25 @@ def displacement_error(name: str, y: float, rest: float) -> str | None:
     return None
 
 
+def marker_error(robot: Robot, name: str, xyz) -> str | None:
+    """Why a measured position ``xyz`` (m, global) of marker ``name`` cannot be one, or None:
+    finite, and within twice the rod's length of its base (no marker gets farther)."""
+    p = np.asarray(xyz, float)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        return f"marker {name}: a position is 3 finite numbers, got {xyz!r}"
+    d = float(np.linalg.norm(p - np.asarray(robot.base_position, float)))
+    if d > 2 * robot.rod.length:
+        return (f"marker {name} at {d:.3g} m from the base, more than twice the rod's length "
+                f"({robot.rod.length:g} m): positions are in metres")
+    return None
+
+
 def tendon_vector(robot: Robot, values: Mapping[str, float] | None, what: str) -> np.ndarray:
     """Per-tendon values from a {name: value} mapping (tendons not named: 0); names and
     finiteness checked, nothing else."""
+    if values is not None and not isinstance(values, Mapping):
+        raise ValueError(f"{what}s: a mapping {{tendon: value}} such as {{'t1': 2.0}}, not a "
+                         f"{type(values).__name__}")
     out = np.zeros(len(robot.tendons))
     for name, v in (values or {}).items():
         if name not in robot.tendon_names:
@@ -177,10 +193,21 @@ def friction_signs(robot: Robot, directions: Mapping[str, str] | None,
     return np.array([signs[d] for d in sliding(robot, directions).values()])
 
 
+def _sequence(items, what: str, example: str) -> list:
+    """``items`` as a list, or a ValueError naming ``what`` it should be (a string, a mapping or
+    a single object is not a list of them)."""
+    if isinstance(items, (str, bytes, Mapping)) or not isinstance(items, Iterable):
+        raise ValueError(f"{what}: a list such as {example}, not a {type(items).__name__}")
+    return list(items)
+
+
 def check_point_forces(robot: Robot, point_forces: Sequence[PointForce]):
     """Validated ``(X (n,), forces (n, 3))`` of known point forces."""
     Xs, Fs = [], []
-    for i, (X, f) in enumerate(point_forces):
+    for i, load in enumerate(_sequence(point_forces, "point forces", "[(X, (fx, fy, fz))]")):
+        if isinstance(load, (str, bytes)) or not hasattr(load, "__len__") or len(load) != 2:
+            raise ValueError(f"point force {i + 1}: a pair (X, (fx, fy, fz)), got {load!r}")
+        X, f = load
         X = finite(f"point force {i + 1} X", X)
         if not 0.0 <= X <= robot.rod.length:
             raise ValueError(f"point force {i + 1}: X = {X:g} m is outside the rod "
@@ -238,6 +265,14 @@ class Noise:
     length: float = 1e-4
     tension: float = 0.025 / 3
 
+    def __post_init__(self):
+        if not (math.isfinite(self.length) and self.length > 0):
+            raise ValueError(f"length noise: must be a positive number of metres, got "
+                             f"{self.length!r}")
+        if not (math.isfinite(self.tension) and 0 < self.tension < 1):
+            raise ValueError(f"tension noise: relative, must be a fraction in (0, 1) (0.01 is "
+                             f"1 %), got {self.tension!r}")
+
 
 #: default random walk of the unknown magnitudes in motion, per √s (N/√s for a force): a
 #: force step followed to 90 % within 0.2 s on the prototype at τ = 0.3 s, 100 Hz, 0.1 mm and
@@ -251,8 +286,13 @@ Unknown = PointForceUnknown | GravityUnknown
 def check_unknowns(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown]):
     """The counting and range rules of eq. 17 for ``unknowns`` estimated from the tendons
     ``measured``: a ValueError naming what is wrong."""
+    unknowns = _sequence(unknowns, "unknowns", "[PointForceUnknown(…)]")
+    for i, u in enumerate(unknowns, 1):
+        if not isinstance(u, (PointForceUnknown, GravityUnknown)):
+            raise ValueError(f"unknown {i}: a PointForceUnknown or GravityUnknown, got {u!r}")
     if not unknowns:
         raise ValueError("estimation needs at least one unknown load")
+    measured = _sequence(measured, "measured tendons", "['t1']")
     for name in measured:
         if name not in robot.tendon_names:
             raise ValueError(f"displacement {name}: no such tendon (robot has "

@@ -15,8 +15,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .inputs import (SLIDING, Unknown, axial_stiffness, displacement_error, rest_lengths,
-                     tension_error)
+from .inputs import (SLIDING, Unknown, axial_stiffness, displacement_error, marker_error,
+                     rest_lengths, tension_error)
 from .result import SampleEstimate
 from .robot import Robot, value_error
 
@@ -313,6 +313,8 @@ def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
             cols = [f"marker_{m}_{a}" for a in "xyz"]
             if any((row.get(c) or "").strip() for c in cols):
                 pos[m] = np.array([num(c) for c in cols])
+                if error := marker_error(robot, m, pos[m]):
+                    raise SnapshotError(f"{path}: snapshot row {i}: {error}")
         if not pos and not lengths:
             raise SnapshotError(f"{path}: snapshot row {i}: no marker position and no tendon "
                                 f"displacement: nothing measured")

@@ -28,6 +28,10 @@ MAX_LENGTH = 10.0
 #: have (below them a value is in MPa or GPa, or in g/cm³)
 MIN_YOUNG_MODULUS = 1e3
 MIN_DENSITY = 10.0
+#: the largest friction coefficient of a tendon in its guides (a larger one is a percentage)
+MAX_FRICTION = 2.0
+#: the largest gravitational acceleration, m/s² (a larger one is in other units)
+MAX_GRAVITY = 100.0
 
 
 def value_error(name: str, v: float) -> str | None:
@@ -43,6 +47,9 @@ def value_error(name: str, v: float) -> str | None:
     if name == "density" and 0 < v < MIN_DENSITY:
         return (f"{v:g} kg/m³ is lighter than any solid (under {MIN_DENSITY:g} kg/m³; "
                 f"densities are in kg/m³, water 1000; 0 leaves out the rod's weight)")
+    if name == "friction" and v > MAX_FRICTION:
+        return (f"{v:g} is more than any tendon's in its guides (at most {MAX_FRICTION:g}; "
+                f"a coefficient such as 0.3, not a percentage)")
     return f"must be >= 0, got {v:g}" if v < 0 else None
 
 
@@ -265,6 +272,9 @@ def parse_robot(data: dict, source: str = "robot", default_name: str = "robot") 
         g = _Reader(data["gravity"], "gravity", source)
         g.check_keys(("acceleration",))
         gravity = g.vector("acceleration", 3)
+        if np.linalg.norm(gravity) > MAX_GRAVITY:
+            g.fail("acceleration", f"{np.linalg.norm(gravity):g} m/s² is more than "
+                                   f"{MAX_GRAVITY:g} m/s² (accelerations are in m/s²: 9.81)")
 
     base_position, base_rotation = (0.0, 0.0, 0.0), tuple(map(tuple, np.eye(3)))
     if top.has("base"):
@@ -409,7 +419,9 @@ def _parse_tendon(r: _Reader, rod: Rod) -> Tendon:
     r.check_keys(("name", "offset_base", "offset_tip", "friction", "disks"))
     name = r.string("name")
     ob, ot = r.vector("offset_base", 2), r.vector("offset_tip", 2)
-    mu = r.number("friction", default=0.0, low=0.0)
+    mu = r.number("friction", default=0.0)
+    if why := value_error("friction", mu):
+        r.fail("friction", why)
     if not r.has("disks"):
         r.fail("disks", "missing (a count, or a list of X)")
     raw = r.table["disks"]

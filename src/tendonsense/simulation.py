@@ -118,6 +118,8 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     max_step = inputs.finite("max_step", max_step)
     if not (duration > 0 and output_dt > 0 and max_step > 0):
         raise ValueError("duration, output_dt and max_step must be > 0")
+    if at is None and output_dt > duration:
+        raise ValueError(f"output_dt {output_dt:g} s is longer than the duration {duration:g} s")
     if not inertia and robot.rod.damping <= 0:
         raise ValueError("without inertia the motion needs [rod] damping > 0 (with neither, "
                          "every instant is the static equilibrium: use solve)")
