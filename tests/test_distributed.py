@@ -371,8 +371,18 @@ def test_a_task_size_without_a_cluster_is_refused(tmp_path, capsys):
     assert not (tmp_path / "r.csv").exists()
 
 
+def test_a_sets_tensions_are_bounded_by_its_own_modulus(tmp_path, capsys):
+    """50 N is within half of E·A at the tip with the set's E = 2 MPa (78.5 N), 30 N is not with
+    0.1 MPa (3.9 N): refused by the set's number, though under the robot file's 39 N."""
+    (tmp_path / "sets.csv").write_text("tension_t1,young_modulus\n50,2e6\n30,1e5\n")
+    code = cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", tmp_path / "r.csv"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1, err
+    assert "set 2: tension t1 = 30 N would shorten the rod" in err[0] and "7.85 N" in err[0]
+
+
 @pytest.mark.parametrize("column,good,value,why", [
-    ("young_modulus", "1000", "-5", "must be > 0"), ("young_modulus", "1e6", "2.5", "is in Pa"),
+    ("young_modulus", "1e6", "-5", "must be > 0"), ("young_modulus", "1e6", "2.5", "is in Pa"),
     ("density", "10", "1.34", "in kg/m³"), ("friction_t1", "0", "-0.1", "must be >= 0"),
     ("friction", "2", "40", "not a percentage")])
 def test_a_bad_parameter_set_is_named_and_nothing_written(tmp_path, capsys, column, good, value,

@@ -202,8 +202,11 @@ def test_simulate_writes_a_readings_log_the_estimator_reads(tmp_path):
 
     bad = tmp_path / "bad.csv"
     bad.write_text("time,tension_t1\n0,0\n0.05,-0.1\n")
+    gf = tmp_path / "gf.csv"  # beyond half the rod's E·A: a unit slip
+    gf.write_text("time,tension_t1\n0,0\n0.05,1e7\n")
     for args, code, words in (
             (("--tensions", bad), 1, "negative"),
+            (("--tensions", gf), 1, "tensions are in newtons"),
             (("--tension", "t1=-1"), 1, "negative"),
             (("--tension", "t9=1"), 1, "t9"),
             (("--no-inertia", "--tension", "t1=1"), 0, None)):

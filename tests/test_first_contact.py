@@ -17,6 +17,7 @@ from tendonsense.estimation import Noise, PointForceUnknown, estimate, problem
 from tendonsense.forward import forward_kinematics, solve
 from tendonsense.identification import Snapshot, SnapshotError, identify
 from tendonsense.online import OnlineEstimator
+from tendonsense.simulation import simulate
 from tendonsense.tracking import estimate_series
 
 TIP = PointForceUnknown(0.25, (0, 0, -1))
@@ -89,7 +90,13 @@ def test_a_bad_reading_is_marked_by_the_online_estimator_and_a_series(prototype,
      "parameters to fit: a list such as ('young_modulus',), not a string"),
     (lambda r: Noise(length=-1e-4), "length noise: must be a positive number of metres"),
     (lambda r: Noise(length=float("nan")), "length noise"),
-    (lambda r: Noise(tension=2.5), "tension noise: relative, must be a fraction in (0, 1)"),
+    (lambda r: Noise(tension=2.5), "tension noise: relative, must be a fraction under 1"),
+    (lambda r: estimate(r, {"t1": -0.005}, {"t1": 2.1}, [TIP], noise=0.01), "noise: a Noise("),
+    (lambda r: problem(r, iter(["t1"]), [TIP]), "not a list_iterator"),
+    (lambda r: solve(r, {"t1": 2.0}, (0.25, (0, 0, -0.1))), "a list of pairs"),
+    (lambda r: r.with_parameters(density=1.34), "density: 1.34 kg/m³ is lighter"),
+    (lambda r: simulate(r, {"t1": 1.0}, duration=0.1, output_dt=0.2),
+     "output_dt 0.2 s is longer than the duration 0.1 s"),
 ])
 def test_the_python_api_says_what_it_expected(prototype, call, words):
     """A value of the wrong kind is named with what was expected, not a Python internal
@@ -338,6 +345,10 @@ def test_a_header_only_log_is_an_error(tmp_path):
     (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--tension", "t1=2", "--unknown",
       "0.25,0,0,-1", "--tension-noise", "2.5"), 2, "must be a fraction under 1"),  # per cent
     (("solve", PROTOTYPE, "--tension", "t1=204"), 1, "tensions are in newtons"),  # gF
+    (("simulate", PROTOTYPE, "--tension", "t1=2", "--duration", "1", "--noise-tension", "1.5",
+      "-o", "s.csv"), 1, "--noise-tension 1.5: relative, must be a fraction under 1"),
+    (("simulate", PROTOTYPE, "--tension", "t1=2", "--duration", "1", "--seed", "-1", "-o",
+      "s.csv"), 1, "--seed -1: must be a whole number >= 0"),
     (("estimate", PROTOTYPE, "--readings", ROOT / "examples" / "tutorial" / "readings.csv",
       ROOT / "examples" / "sweep_sets.csv", "--unknown", "0.25,0,0,-1", "-o", "e.csv"), 2,
      "several logs write one output each into a folder: -o e.csv/ makes it"),

@@ -311,3 +311,28 @@ def test_fitted_file_needs_the_files_tendons():
     other = dataclasses.replace(robot, tendons=robot.tendons[:2])
     with pytest.raises(RobotFileError, match="tendons"):
         fitted_toml(PROTOTYPE.read_text(), other, HEADER)
+
+
+def test_the_thinnest_section_a_tendon_spans():
+    """A tension is bounded by E·A where the rod is thinnest between its base and the tendon's
+    anchor: a knot inside the span, an anchor before the knot, a continuous tendon."""
+    import math
+
+    from conftest import robot_from
+    from tendonsense.inputs import tension_error, thinnest_sections
+    robot = robot_from(
+        rod={"length": 0.25, "radius": [[0.0, 0.01], [0.1, 0.004], [0.25, 0.006]],
+             "young_modulus": 1e6, "poisson_ratio": 0.5, "density": 1000.0},
+        tendon=[{"name": "short", "offset_base": [0, 0.003], "offset_tip": [0, 0.003],
+                 "disks": [0.0, 0.025, 0.05]},
+                {"name": "long", "offset_base": [0, 0.003], "offset_tip": [0, 0.003],
+                 "disks": [0.0, 0.1, 0.2]},
+                {"name": "along", "offset_base": [0, 0.003], "offset_tip": [0, 0.003],
+                 "disks": "continuous"}])
+    area = thinnest_sections(robot)
+    assert area["short"] == pytest.approx(math.pi * 0.007 ** 2)  # r(0.05), before the knot
+    assert area["long"] == area["along"] == pytest.approx(math.pi * 0.004 ** 2)  # the knot
+    limit = 0.5 * 1e6 * math.pi * 0.004 ** 2
+    assert tension_error(robot, "long", 0.99 * limit) is None
+    assert "tensions are in newtons" in tension_error(robot, "long", 1.01 * limit)
+    assert tension_error(robot, "long", 1.01 * limit, young_modulus=math.inf) is None

@@ -132,6 +132,12 @@ def test_batch_values_follow_the_robot_files_rules(prototype, values, why):
         solve_batch(prototype, {"t1": [2.0, 2.0]}, values=values)
 
 
+def test_batch_tensions_are_bounded_by_each_samples_modulus(prototype):
+    from tendonsense.tracking import solve_batch
+    with pytest.raises(ValueError, match="batch: sample 2: tension t1 = 30 N would shorten"):
+        solve_batch(prototype, {"t1": [50.0, 30.0]}, values={"young_modulus": [2e6, 1e5]})
+
+
 def test_least_squares_scan_converges_noisy_samples_itself(prototype, monkeypatch):
     """A noisy three-tendon log for one unknown: the compiled scan converges every sample
     itself (none is handed to the plain path), to the plain path's minimum. Near a minimum with

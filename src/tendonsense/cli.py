@@ -15,6 +15,7 @@ import glob
 import importlib.util
 import io
 import json
+import math
 import os
 import sys
 import time
@@ -167,8 +168,7 @@ def _positive(text: str) -> float:
 def _fraction(text: str) -> float:
     v = _positive(text)
     if v >= 1:
-        raise argparse.ArgumentTypeError(f"relative, must be a fraction under 1 (0.01 is 1 %), "
-                                         f"got {text!r}")
+        raise argparse.ArgumentTypeError(f"{inputs.FRACTION}, got {text!r}")
     return v
 
 
@@ -635,8 +635,10 @@ def _check_identify(args, robot):
         if not has_time(args.readings):
             raise ValueError(f"{args.readings}: no time column: the damping is fitted to a "
                              f"motion over time")
-    else:
-        args.snapshots_read = read_snapshots(args.snapshots, robot)
+    else:  # a modulus being fitted bounds no tension (the file's is a guess)
+        fitted = args.param or ("young_modulus", "density")
+        args.snapshots_read = read_snapshots(
+            args.snapshots, robot, math.inf if "young_modulus" in fitted else None)
 
 
 def _check_simulate(args, robot):
@@ -655,8 +657,9 @@ def _check_simulate(args, robot):
         if not (0 <= v < float("inf")):
             raise ValueError(f"{flag} {v:g}: must be a finite number >= 0")
     if args.noise_tension >= 1:
-        raise ValueError(f"--noise-tension {args.noise_tension:g}: relative, must be a fraction "
-                         f"under 1 (0.01 is 1 %)")
+        raise ValueError(f"--noise-tension {args.noise_tension:g}: {inputs.FRACTION}")
+    if args.seed is not None and args.seed < 0:
+        raise ValueError(f"--seed {args.seed}: must be a whole number >= 0")
     if args.output_dt > args.duration:
         raise ValueError(f"--output-dt {args.output_dt:g} s is longer than --duration "
                          f"{args.duration:g} s")

@@ -26,7 +26,8 @@ from typing import TYPE_CHECKING, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from .inputs import WALK, Noise, Unknown, check_point_forces, check_unknowns, tendon_vector
+from .inputs import (WALK, Noise, Unknown, check_noise, check_point_forces, check_unknowns,
+                     tendon_vector)
 from .readings import LogSummary, log_outputs
 from .result import SampleEstimate
 from .robot import Robot
@@ -310,9 +311,7 @@ def estimate_logs(client, robot: Robot, logs: Sequence[str | Path], out_dir: str
         raise ValueError("estimate_logs: no logs")
     check_point_forces(robot, point_forces)
     check_unknowns(robot, robot.tendon_names, unknowns)
-    if not (noise.length > 0 and noise.tension > 0 and np.isfinite([noise.length,
-                                                                      noise.tension]).all()):
-        raise ValueError("noise: the standard deviations must be positive and finite")
+    check_noise(noise)
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
         raise ValueError(f"{out_dir}: no such folder")

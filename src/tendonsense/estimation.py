@@ -21,6 +21,7 @@ from .fastpath import tracker
 from . import inputs
 from .forward import make_result
 from .inputs import GravityUnknown, Noise, PointForceUnknown, Unknown  # noqa: F401 (API)
+from .inputs import check_noise
 from .model import Values
 from .problem import Problem, _jacobians_fn, problem, reduced_jacobians  # noqa: F401 (API)
 from .result import Result
@@ -218,6 +219,7 @@ def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Nois
     bounds the evaluations of each equilibrium solve (:func:`~tendonsense.statics.solve_system`),
     ``total_budget`` those of a least-squares fit's solves together.
     With located unknowns ``x0`` is not used: their X is searched over its whole range."""
+    check_noise(noise)
     model = prob.model
     T, y_all = prob.readings(displacements, tensions)
     drive = prob.drive(T, y_all[list(prob.measured)])

@@ -39,7 +39,7 @@ import numpy as np
 from .compiled import Program
 from .dynamics import free_modes
 from .estimation import estimate_problem
-from .inputs import WALK, Noise, sliding as check_sliding
+from .inputs import WALK, Noise, check_noise, sliding as check_sliding
 from .kinematics import poses, positions
 from .model import PointSet, Structure, Values, points_at
 from .problem import Problem, _jacobians_fn
@@ -209,9 +209,7 @@ class MotionFilter:
         if prob.located:
             raise ValueError("estimation in motion takes forces at known points (a location "
                              "range ('A:B' or '?') is estimated quasi-statically only)")
-        if not (noise.length > 0 and np.isfinite(noise.length)):
-            raise ValueError(f"estimation in motion needs a length noise > 0 m (the filter "
-                             f"weighs the readings by it), got {noise.length!r}")
+        check_noise(noise)
         if not (walk > 0 and np.isfinite(walk)):
             raise ValueError(f"force walk: must be a number > 0 (per √s), got {walk!r}")
         self.problem, self.noise, self.walk = prob, noise, walk

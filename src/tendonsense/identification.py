@@ -12,6 +12,7 @@ each weighted by its noise).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Callable, NamedTuple, Sequence
@@ -104,7 +105,9 @@ def _check(robot: Robot, snapshots: Sequence[Snapshot], params: Sequence[str]):
                             f"{', '.join(params) or 'none'}")
     for k, s in enumerate(snapshots, start=1):
         try:
-            inputs.tensions(robot, s.tensions)
+            # a modulus being fitted bounds no tension (the robot's is a guess)
+            inputs.tensions(robot, s.tensions,
+                            math.inf if "young_modulus" in params else None)
             inputs.displacements(robot, s.displacements)
             inputs.sliding(robot, s.sliding, ("in", "out"))
         except ValueError as exc:
@@ -338,23 +341,31 @@ def _what(snapshots) -> str:
 MISFIT_QUANTILE = 0.999
 
 
-def misfit_of(chi2: float, n: int, n_params: int) -> tuple[float | None, str]:
-    """The RMS of ``n`` noise-weighted residuals of total ``chi2`` over their degrees of
-    freedom (about 1 where the model explains the data and the noise is as assumed; None
-    without a degree of freedom), and a warning where ``chi2`` is above the
-    :data:`MISFIT_QUANTILE` quantile of its χ² distribution (the 1-σ values assume the noise
-    alone) or below the 1 − :data:`MISFIT_QUANTILE` one (the noise assumed is too large)."""
+def misfit_of(kinds: dict[str, tuple[np.ndarray, float]], n_params: int
+              ) -> tuple[float | None, str]:
+    """The RMS of the residuals in units of their noise over their degrees of freedom (about 1
+    where the model explains the data and the noise is as assumed; None without a degree of
+    freedom), ``kinds`` {kind: (residuals, noise)} (m), and a warning where their χ² is above
+    the :data:`MISFIT_QUANTILE` quantile of its distribution (the 1-σ values assume the noise
+    alone), or one kind's below the 1 − :data:`MISFIT_QUANTILE` one (its noise assumed is too
+    large: the ± values too wide)."""
     from scipy.stats import chi2 as distribution
+    chi2 = {k: (float(np.sum((np.asarray(r) / s) ** 2)), np.size(r))
+            for k, (r, s) in kinds.items()}
+    n = sum(m for _, m in chi2.values())
     dof = n - n_params
     if dof < 1:
         return None, ""
-    ratio = float(np.sqrt(chi2 / dof))
-    if chi2 < distribution.ppf(1 - MISFIT_QUANTILE, dof):
-        return ratio, (f"the residuals are {ratio:.2g} times the noise assumed, far less than "
-                       f"that noise gives: the noise is smaller than assumed (the marker and "
-                       f"length noise given, in metres), and the ± values, which assume it, "
-                       f"are too wide")
-    if chi2 <= distribution.ppf(MISFIT_QUANTILE, dof):
+    total = sum(c for c, _ in chi2.values())
+    ratio = float(np.sqrt(total / dof))
+    for k, (c, m) in chi2.items():
+        dof_k = m - n_params * m / n
+        if dof_k >= 1 and c < distribution.ppf(1 - MISFIT_QUANTILE, dof_k):
+            return ratio, (f"the {k} residuals are {np.sqrt(c / dof_k):.2g} times the {k} noise "
+                           f"assumed ({kinds[k][1]:g} m), far less than that noise gives: it is "
+                           f"smaller than assumed, and the ± values, which assume it, are too "
+                           f"wide")
+    if total <= distribution.ppf(MISFIT_QUANTILE, dof):
         return ratio, ""
     return ratio, (f"the residuals are {ratio:.2g} times the noise assumed, more than noise "
                    f"explains: the model does not fit the data (a parameter not fitted, a load "
@@ -409,11 +420,16 @@ def identify(robot: Robot, snapshots: Sequence[Snapshot],
     mu = {p.partition("_")[2]: v for p, v in fitted.items() if p.startswith("friction_")}
     shared = {n: fitted["friction"] for n in robot.tendon_names
               if "friction" in fitted and n not in mu}
-    new_robot = robot.with_parameters(young_modulus=fitted.get("young_modulus"),
-                                      density=fitted.get("density"),
-                                      friction={**shared, **mu} or None)
-    r = setup.residual(parts)
-    ratio, warning = misfit_of(float(r @ r), r.size, len(params))
+    try:
+        new_robot = robot.with_parameters(young_modulus=fitted.get("young_modulus"),
+                                          density=fitted.get("density"),
+                                          friction={**shared, **mu} or None)
+    except ValueError as exc:  # no robot has such a value: the data are not what was assumed
+        raise SnapshotError(f"the fit ran to a value no robot has, {exc}: check the snapshots' "
+                            f"units (N, m) and loads") from None
+    ratio, warning = misfit_of(
+        {"marker": (np.concatenate([m.ravel() for m, _ in parts]), marker_noise),
+         "length": (np.concatenate([y for _, y in parts]), length_noise)}, len(params))
     return Identified(fitted, *_errors(parts), *initial, converged, it, new_robot, folds,
                       per_snapshot, sigma, note, ratio, warning)
 
@@ -569,7 +585,8 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
             f"{10 * t[-1]:g} s): the log does not pin it down" if edge else
             "" if sigma is not None else "the log bounds the damping from below only (χ² "
             "rises by less than 1 up to the end of the range searched)")
-    ratio, warning = misfit_of(chi2_min, dp.size + dy.size, 1) if dp is not None else (None, "")
+    ratio, warning = misfit_of({"marker": (dp, marker_noise), "length": (dy, length_noise)},
+                               1) if dp is not None else (None, "")
     return Identified({"damping": eta}, *errors(dp, dy), *errors(*initial),
                       bool(found.success) and not edge, evaluations[0],
                       robot.with_parameters(damping=eta), sigma={"damping": sigma}, note=note,

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Iterable, Mapping, Sequence
+from typing import Collection, Mapping, Sequence
 
 import numpy as np
 
@@ -59,22 +59,28 @@ MAX_COMPRESSION = 0.5
 
 
 @lru_cache(maxsize=64)
-def axial_stiffness(robot: Robot) -> dict[str, float]:
-    """E·A (N) of the thinnest section of the rod between its base and each tendon's anchor,
-    by tendon name: a tension T shortens it by about T / E·A there."""
+def thinnest_sections(robot: Robot) -> dict[str, float]:
+    """The area (m²) of the thinnest section of the rod between its base and each tendon's
+    anchor, by tendon name: a tension T shortens the rod by about T / E·A there."""
     rod = robot.rod
     knots = np.array([x for x, _ in rod.radius_knots])
-    return {t.name: float(rod.young_modulus * rod.area(
-        np.append(knots[knots <= t.disks[-1]], t.disks[-1])).min()) for t in robot.tendons}
+    return {t.name: float(rod.area(np.append(knots[knots <= t.disks[-1]], t.disks[-1])).min())
+            for t in robot.tendons}
 
 
-def tension_error(robot: Robot, name: str, T: float) -> str | None:
-    """Why tension ``T`` (N) of the robot's tendon ``name`` cannot be a reading, or None."""
+def tension_error(robot: Robot, name: str, T: float, young_modulus: float | None = None
+                  ) -> str | None:
+    """Why tension ``T`` (N) of the robot's tendon ``name`` cannot be a reading, or None.
+    ``young_modulus``: the rod's where it is not the robot file's (``math.inf`` where it is not
+    known, as while it is fitted: no bound)."""
+    if name not in robot.tendon_names:
+        return f"tension {name}: no such tendon (robot has {', '.join(robot.tendon_names)})"
     if not math.isfinite(T):
         return f"tension {name} = {T}: not a finite number"
     if T < 0:
         return f"tension {name} = {T:g} N is negative (a tendon cannot push; slack is 0)"
-    EA = axial_stiffness(robot)[name]
+    EA = (robot.rod.young_modulus if young_modulus is None else young_modulus) \
+        * thinnest_sections(robot)[name]
     if T > MAX_COMPRESSION * EA:
         return (f"tension {name} = {T:g} N would shorten the rod by more than half where it is "
                 f"thinnest (T = {T / EA:.2g} E·A, E·A = {EA:.3g} N there): tensions are in "
@@ -95,21 +101,24 @@ def displacement_error(name: str, y: float, rest: float) -> str | None:
 
 def marker_error(robot: Robot, name: str, xyz) -> str | None:
     """Why a measured position ``xyz`` (m, global) of marker ``name`` cannot be one, or None:
-    finite, and within twice the rod's length of its base (no marker gets farther)."""
+    finite, and within twice the rod's length (and the marker's offset) of its base: no marker
+    gets farther."""
     p = np.asarray(xyz, float)
     if p.shape != (3,) or not np.all(np.isfinite(p)):
         return f"marker {name}: a position is 3 finite numbers, got {xyz!r}"
     d = float(np.linalg.norm(p - np.asarray(robot.base_position, float)))
-    if d > 2 * robot.rod.length:
-        return (f"marker {name} at {d:.3g} m from the base, more than twice the rod's length "
-                f"({robot.rod.length:g} m): positions are in metres")
+    offset = [float(np.linalg.norm(m.offset)) for m in robot.markers if m.name == name]
+    reach = 2 * robot.rod.length + (offset[0] if offset else 0.0)
+    if d > reach:
+        return (f"marker {name} at {d:.3g} m from the base, farther than it can be ({reach:.3g} "
+                f"m, twice the rod's length and its offset): positions are in metres")
     return None
 
 
 def tendon_vector(robot: Robot, values: Mapping[str, float] | None, what: str) -> np.ndarray:
     """Per-tendon values from a {name: value} mapping (tendons not named: 0); names and
     finiteness checked, nothing else."""
-    if values is not None and not isinstance(values, Mapping):
+    if values is not None and not hasattr(values, "items"):  # a mapping (or a pandas Series)
         raise ValueError(f"{what}s: a mapping {{tendon: value}} such as {{'t1': 2.0}}, not a "
                          f"{type(values).__name__}")
     out = np.zeros(len(robot.tendons))
@@ -121,11 +130,13 @@ def tendon_vector(robot: Robot, values: Mapping[str, float] | None, what: str) -
     return out
 
 
-def tensions(robot: Robot, values: Mapping[str, float] | None) -> np.ndarray:
-    """Tensions (N) per tendon by the rules of this module; tendons not named are slack."""
+def tensions(robot: Robot, values: Mapping[str, float] | None,
+             young_modulus: float | None = None) -> np.ndarray:
+    """Tensions (N) per tendon by the rules of this module; tendons not named are slack.
+    ``young_modulus``: as for :func:`tension_error`."""
     T = tendon_vector(robot, values, "tension")
     for name, v in zip(robot.tendon_names, T):
-        if error := tension_error(robot, name, v):
+        if error := tension_error(robot, name, v, young_modulus):
             raise ValueError(error)
     return T
 
@@ -194,9 +205,9 @@ def friction_signs(robot: Robot, directions: Mapping[str, str] | None,
 
 
 def _sequence(items, what: str, example: str) -> list:
-    """``items`` as a list, or a ValueError naming ``what`` it should be (a string, a mapping or
-    a single object is not a list of them)."""
-    if isinstance(items, (str, bytes, Mapping)) or not isinstance(items, Iterable):
+    """``items`` as a list, or a ValueError naming ``what`` it should be (a string, a mapping, a
+    single object or a one-pass iterator is not a list of them)."""
+    if isinstance(items, (str, bytes, Mapping)) or not isinstance(items, Collection):
         raise ValueError(f"{what}: a list such as {example}, not a {type(items).__name__}")
     return list(items)
 
@@ -204,7 +215,11 @@ def _sequence(items, what: str, example: str) -> list:
 def check_point_forces(robot: Robot, point_forces: Sequence[PointForce]):
     """Validated ``(X (n,), forces (n, 3))`` of known point forces."""
     Xs, Fs = [], []
-    for i, load in enumerate(_sequence(point_forces, "point forces", "[(X, (fx, fy, fz))]")):
+    point_forces = _sequence(point_forces, "point forces", "[(X, (fx, fy, fz))]")
+    if len(point_forces) == 2 and isinstance(point_forces[0], (int, float, np.number)):
+        raise ValueError("point forces: a list of pairs such as [(X, (fx, fy, fz))], not one "
+                         "pair")
+    for i, load in enumerate(point_forces):
         if isinstance(load, (str, bytes)) or not hasattr(load, "__len__") or len(load) != 2:
             raise ValueError(f"point force {i + 1}: a pair (X, (fx, fy, fz)), got {load!r}")
         X, f = load
@@ -266,12 +281,26 @@ class Noise:
     tension: float = 0.025 / 3
 
     def __post_init__(self):
-        if not (math.isfinite(self.length) and self.length > 0):
-            raise ValueError(f"length noise: must be a positive number of metres, got "
-                             f"{self.length!r}")
-        if not (math.isfinite(self.tension) and 0 < self.tension < 1):
-            raise ValueError(f"tension noise: relative, must be a fraction in (0, 1) (0.01 is "
-                             f"1 %), got {self.tension!r}")
+        length, tension = finite("length noise", self.length), finite("tension noise",
+                                                                       self.tension)
+        if length <= 0:
+            raise ValueError(f"length noise: must be a positive number of metres, got {length:g}")
+        if not 0 < tension < 1:
+            raise ValueError(f"tension noise: {FRACTION}, got {tension:g}")
+        object.__setattr__(self, "length", length)
+        object.__setattr__(self, "tension", tension)
+
+
+#: the rule for a relative noise (of the tensions), as the messages say it
+FRACTION = "relative, must be a fraction under 1 (0.01 is 1 %)"
+
+
+def check_noise(noise) -> Noise:
+    """``noise`` if it is a :class:`Noise`, or a ValueError saying what is expected."""
+    if not isinstance(noise, Noise):
+        raise ValueError(f"noise: a Noise(length=M, tension=FRACTION), not a "
+                         f"{type(noise).__name__}")
+    return noise
 
 
 #: default random walk of the unknown magnitudes in motion, per √s (N/√s for a force): a

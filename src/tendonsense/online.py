@@ -16,7 +16,7 @@ from .estimation import estimate_problem
 from .fastpath import Track, stepper, unpack_row
 from .filtering import MotionFilter
 from .forward import INADMISSIBLE
-from .inputs import WALK, Noise, sliding as check_sliding
+from .inputs import WALK, Noise, check_noise, sliding as check_sliding
 from .problem import Problem, band
 from .result import SampleEstimate
 from .sliding import FIXED_POINT, STATE_TOL, FrictionHistory, band_range, labels
@@ -43,8 +43,8 @@ class OnlineEstimator:
     a fixed ``rescue_budget`` of evaluations, for results that must not depend on the clock).
     The first sample, with no earlier state to start from, may take a full solve with load
     continuation.
-    A bad reading (non-finite, a negative tension, a tendon pulled in by more than its length)
-    is answered at once, not converged, with the reason in ``note``; a sample that fails
+    A bad reading (:mod:`tendonsense.inputs`' rules: non-finite, a negative tension or one
+    that would crush the rod, a tendon pulled in by more than its length) is answered at once, not converged, with the reason in ``note``; a sample that fails
     leaves the state as it was, so the next one starts from the last good sample.
     Overdetermined problems (more measured tendons than unknowns) take Gauss–Newton SQP
     steps on the same fast path; their rescue is the least-squares solver of
@@ -70,7 +70,7 @@ class OnlineEstimator:
     def __init__(self, prob: Problem, noise: Noise = Noise(), time_limit: float = 0.02,
                  rescue_budget: int | None = None, dynamic: bool = False, walk: float = WALK,
                  inertia: bool = True):
-        self.problem, self.noise, self.time_limit = prob, noise, time_limit
+        self.problem, self.noise, self.time_limit = prob, check_noise(noise), time_limit
         self.rescue_budget = rescue_budget
         self._filter = MotionFilter(prob, noise, walk, inertia) if dynamic else None
         model = prob.model

@@ -15,8 +15,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .inputs import (SLIDING, Unknown, axial_stiffness, displacement_error, marker_error,
-                     rest_lengths, tension_error)
+from .inputs import (SLIDING, Unknown, displacement_error, marker_error, rest_lengths,
+                     tension_error)
 from .result import SampleEstimate
 from .robot import Robot, value_error
 
@@ -190,13 +190,10 @@ def _check_units(path, columns: Columns, robot: Robot, rows):
         if f"tension_{name}" not in columns.header:
             continue
         v = values(f"tension_{name}")
-        over = sum(tension_error(robot, name, T) is not None for T in v if T >= 0)
-        if over >= 3 and over > v.size / 2:
-            EA = axial_stiffness(robot)[name]
-            raise ReadingsError(
-                f"{path}: column tension_{name}: {over} of {v.size} rows would shorten the rod "
-                f"by more than half where it is thinnest (E·A = {EA:.3g} N): tensions are in "
-                f"newtons")
+        over = [e for T in v if T >= 0 and (e := tension_error(robot, name, T)) is not None]
+        if len(over) >= 3 and len(over) > v.size / 2:
+            raise ReadingsError(f"{path}: column tension_{name}: {len(over)} of {v.size} rows "
+                                f"break the rule for a tension, such as {over[0]}")
     for name in columns.measured:
         rest = columns.rest[robot.tendon_names.index(name)]
         v = values(f"displacement_{name}")
@@ -253,10 +250,12 @@ class Snapshot:
 
 
 
-def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
+def read_snapshots(path: str | Path, robot: Robot, young_modulus: float | None = None
+                   ) -> list[Snapshot]:
     """SNAPSHOTS.csv: one row per static snapshot (tensions, an optional known load, marker
     positions and/or tendon length changes, and optionally the direction each tendon was
-    sliding: ``sliding_<tendon>`` in or out)."""
+    sliding: ``sliding_<tendon>`` in or out). ``young_modulus`` bounds the tensions
+    (:func:`~tendonsense.inputs.tension_error`; ``math.inf`` while it is fitted)."""
     path = Path(path)
     raw = read_csv_rows(path, SnapshotError)
     header = raw[0] if raw else []
@@ -303,7 +302,7 @@ def read_snapshots(path: str | Path, robot: Robot) -> list[Snapshot]:
         tensions = {n: num(f"tension_{n}") for n in robot.tendon_names}
         lengths = {n: v for n in measured
                    if (v := num(f"displacement_{n}", required=False)) is not None}
-        for error in ([tension_error(robot, n, v) for n, v in tensions.items()]
+        for error in ([tension_error(robot, n, v, young_modulus) for n, v in tensions.items()]
                       + [displacement_error(n, v, rest[robot.tendon_names.index(n)])
                          for n, v in lengths.items()]):
             if error:
@@ -539,6 +538,10 @@ def read_parameter_sets(path: str | Path, robot: Robot) -> ParameterSets:
         if len(row) != len(header):
             raise ReadingsError(f"{path}: set {i + 1}: {len(row)} fields, the header has "
                                 f"{len(header)}")
+        # the set's own modulus bounds its tensions (a bad one is refused by its column)
+        E = _number(row[header.index("young_modulus")]) if "young_modulus" in header else None
+        E = E if E is None or (math.isfinite(E) and not value_error("young_modulus", E)) \
+            else None
         for j, col in enumerate(numeric):
             text = row[header.index(col)].strip()
             v = _number(text)
@@ -548,7 +551,7 @@ def read_parameter_sets(path: str | Path, robot: Robot) -> ParameterSets:
             kind, _, name = col.partition("_")
             why = value_error("friction" if kind == "friction" else col, v) if (
                 col in SET_VALUES or kind == "friction") else None
-            error = (tension_error(robot, name, v) if kind == "tension" else
+            error = (tension_error(robot, name, v, E) if kind == "tension" else
                      f"{col}: {why}" if why else
                      f"load_X = {v:g} is outside the rod [0, {robot.rod.length:g}]"
                      if col == "load_X" and not 0 <= v <= robot.rod.length else None)

@@ -134,7 +134,13 @@ class Robot:
     def with_parameters(self, young_modulus=None, density=None, friction=None,
                         damping=None) -> "Robot":
         """A copy with other material parameters; ``friction`` is one μ for every tendon or a
-        ``{tendon: μ}`` mapping for some of them."""
+        ``{tendon: μ}`` mapping for some of them. Each is checked as in a robot file
+        (:func:`value_error`)."""
+        mus = friction.values() if isinstance(friction, dict) else [friction]
+        for k, v in (("young_modulus", young_modulus), ("density", density),
+                     ("damping", damping), *(("friction", m) for m in mus)):
+            if v is not None and (why := value_error(k, float(v))):
+                raise ValueError(f"{k}: {why}")
         rod = self.rod
         if young_modulus is not None:
             rod = dataclasses.replace(rod, young_modulus=float(young_modulus))

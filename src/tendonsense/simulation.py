@@ -56,6 +56,10 @@ class Simulation:
         read-out noise of ``noise_length`` (m) on the length changes and ``noise_tension``
         (relative) on the tensions, none on the markers; a noisy tension below 0 reads 0 (a
         sensor of a slack tendon)."""
+        if inputs.finite("noise_length", noise_length) < 0:
+            raise ValueError(f"noise_length: must be >= 0 m, got {noise_length:g}")
+        if not 0 <= inputs.finite("noise_tension", noise_tension) < 1:
+            raise ValueError(f"noise_tension: {inputs.FRACTION}, got {noise_tension:g}")
         rng = np.random.default_rng(seed)
         cols = {"time": self.time}
         for n, T in self.tensions.items():

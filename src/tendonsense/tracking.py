@@ -16,7 +16,8 @@ from .estimation import estimate_problem
 from .fastpath import (MAX_EVALUATIONS, MAX_JACOBIANS, Carry, Track,  # noqa: F401 (API)
                        follower, stacked_drives, stepper, tracker, unpack_row)
 from .forward import model_for, why_not
-from .inputs import Noise, tendon_vector, tension_error
+from .inputs import (MAX_COMPRESSION, Noise, check_noise, tendon_vector, tension_error,
+                     thinnest_sections)
 from .model import VALUE_NAMES
 from .online import RESCUE_BUDGET, OnlineEstimator
 from .problem import Problem, band  # noqa: F401 (API)
@@ -40,8 +41,8 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
     problems, Gauss–Newton SQP for least squares); a sample it cannot converge is solved again
     on its own from the straight rod (load continuation, a bounded budget once an earlier
     sample has converged) and the scan goes on again after it, from that solution; a bad
-    reading (non-finite, negative tension, a tendon pulled in beyond its length) is marked
-    with the reason. A square problem's 1-σ band is exact on the first sample of every
+    reading (:mod:`tendonsense.inputs`' rules: non-finite, a negative tension or one that
+    would crush the rod, a tendon pulled in beyond its length) is marked with the reason. A square problem's 1-σ band is exact on the first sample of every
     :data:`~tendonsense.fastpath.EXACT_EVERY` and within a few per cent between (the
     quasi-Newton inverse). ``progress(done, total)`` is called per
     chunk (:func:`series_chunks` hands over each chunk's estimates as it finishes)."""
@@ -75,6 +76,7 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
     A sample the compiled scan fails is solved on its own (a rescue); with ``persistent``
     False, only if the sample before it converged (a series that may have no solution over a
     stretch, e.g. a friction band's far end, is not solved row by row in vain)."""
+    check_noise(noise)
     robot, model = prob.robot, prob.model
     n = len(displacements)
     if (prob.located or values) and history is not None:
@@ -204,6 +206,7 @@ def estimate_batch(prob: Problem, displacements: Sequence[Mapping[str, float]],
     warm-start each other, cut into ``workers`` runs, and the runs are solved concurrently
     (one thread each; the compiled tracker releases the GIL, so each takes a core).
     """
+    check_noise(noise)
     from concurrent.futures import ThreadPoolExecutor
     robot = prob.robot
     n = len(displacements)
@@ -341,13 +344,17 @@ def batch_inputs(robot: Robot, base, tensions, point_forces, values):
                  axis=1) if point_forces else np.zeros((n, 0, 3))
     if not (np.all(np.isfinite(T)) and np.all(np.isfinite(X)) and np.all(np.isfinite(F))):
         raise ValueError("batch: tensions and point forces must be finite")
-    for j, name in enumerate(names):
-        if error := tension_error(robot, name, float(T[:, j].min(initial=0.0))) or \
-                tension_error(robot, name, float(T[:, j].max(initial=0.0))):
-            raise ValueError(f"batch: {error}")
+    varied = varied_values(base, values, n)
+    E = np.broadcast_to(varied.get("young_modulus", robot.rod.young_modulus), (n,))
+    for j, name in enumerate(names):  # each sample's tensions by the rule, with its own E
+        bad = (T[:, j] < 0) | (T[:, j] > MAX_COMPRESSION * E * thinnest_sections(robot)[name])
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise ValueError(f"batch: sample {k + 1}: "
+                             f"{tension_error(robot, name, float(T[k, j]), float(E[k]))}")
     if np.any((X < 0) | (X > robot.rod.length)):
         raise ValueError(f"batch: a point force X is outside the rod [0, {robot.rod.length:g}]")
-    return T, X, F, varied_values(base, values, n)
+    return T, X, F, varied
 
 
 def varied_values(base, values, n: int) -> dict[str, np.ndarray]:
@@ -370,5 +377,6 @@ def varied_values(base, values, n: int) -> dict[str, np.ndarray]:
             raise ValueError(f"batch: {k} must be finite")
         for v in np.unique(varied[k]):
             if why := value_error(k, float(v)):
-                raise ValueError(f"batch: {k}: {why}")
+                i = int(np.argmax((varied[k] == v).reshape(n, -1).any(axis=1)))
+                raise ValueError(f"batch: sample {i + 1}: {k}: {why}")
     return varied

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import jax.numpy as jnp
 import numpy as np
 
+from . import inputs
 from .forward import model_for, solve
 from .kinematics import frames_fn
 from .robot import Robot
@@ -426,10 +427,15 @@ def _series_colour(key: str, i: int) -> str:
 def explore(robot: Robot, port: int = 8080, host: str = "127.0.0.1", max_tension: float = 5.0,
             max_force: float = 1.0) -> Viewer:
     """Interactive forward statics: a slider per tendon tension and one point force (X,
-    direction, magnitude); every change solves and redraws (``tendonsense view``)."""
+    direction, magnitude); every change solves and redraws (``tendonsense view``). A tension
+    slider ends at ``max_tension`` or at the largest tension a reading may have
+    (:func:`~tendonsense.inputs.tension_error`), whichever is less."""
     viewer = Viewer(robot, port, host, title=f"{robot.name}: forward statics")
     gui, L = viewer.server.gui, robot.rod.length
-    sliders = {n: gui.add_slider(f"tension {n} (N)", min=0.0, max=max_tension, step=0.01,
+    area = inputs.thinnest_sections(robot)
+    top = {n: min(max_tension, np.floor(100 * inputs.MAX_COMPRESSION * robot.rod.young_modulus
+                                         * area[n]) / 100) for n in robot.tendon_names}
+    sliders = {n: gui.add_slider(f"tension {n} (N)", min=0.0, max=top[n], step=0.01,
                                  initial_value=0.0) for n in robot.tendon_names}
     force_X = gui.add_slider("force X (m)", min=0.0, max=L, step=L / 200, initial_value=L)
     force_size = gui.add_slider("force (N)", min=0.0, max=max_force, step=max_force / 200,
