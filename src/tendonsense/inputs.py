@@ -4,8 +4,8 @@ calibration). No JAX: the command line checks everything before it starts a solv
 
 The rules for a reading:
 - a tendon is named by the robot file; a value is a finite number;
-- a tension is ≥ 0 (a tendon cannot push) and shortens the rod by less than half where it is
-  thinnest (T < E·A / 2: a value in gram-force, for one, does not); a slack tendon is a
+- a tension is ≥ 0 (a tendon cannot push) and shortens the rod by at most half where it is
+  thinnest (T ≤ E·A / 2: a value in gram-force, for one, does not); a slack tendon is a
   tension of 0, said explicitly
   in a file (a ``tension_<name>`` column for every tendon), or by leaving the tendon out of a
   command line or a Python mapping;
