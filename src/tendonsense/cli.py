@@ -636,7 +636,7 @@ def _check_identify(args, robot):
             raise ValueError(f"{args.readings}: no time column: the damping is fitted to a "
                              f"motion over time")
     else:  # a modulus being fitted bounds no tension (the file's is a guess)
-        fitted = args.param or ("young_modulus", "density")
+        fitted = args.param or inputs.DEFAULT_PARAMETERS
         args.snapshots_read = read_snapshots(
             args.snapshots, robot, math.inf if "young_modulus" in fitted else None)
 
@@ -1425,7 +1425,7 @@ def _identify(args, robot) -> bool:
                                length_noise=args.length_noise, progress=prog)
         source = f"{args.readings} ({len(args.log[1])} rows)"
     else:
-        fit = identify(robot, args.snapshots_read, args.param or ("young_modulus", "density"),
+        fit = identify(robot, args.snapshots_read, args.param or inputs.DEFAULT_PARAMETERS,
                        progress=prog, marker_noise=args.marker_noise,
                        length_noise=args.length_noise, crossval=args.crossval)
         source = f"{args.snapshots} ({len(args.snapshots_read)} snapshots)"

@@ -20,8 +20,8 @@ import numpy as np
 from .fastpath import tracker
 from . import inputs
 from .forward import make_result
-from .inputs import GravityUnknown, Noise, PointForceUnknown, Unknown  # noqa: F401 (API)
-from .inputs import check_noise
+from .inputs import (GravityUnknown, Noise, PointForceUnknown, Unknown,  # noqa: F401 (API)
+                     check_noise)
 from .model import Values
 from .problem import Problem, _jacobians_fn, problem, reduced_jacobians  # noqa: F401 (API)
 from .result import Result

@@ -382,7 +382,7 @@ def _errors(parts):
 
 
 def identify(robot: Robot, snapshots: Sequence[Snapshot],
-             params: Sequence[str] = ("young_modulus", "density"), max_iterations: int = 50,
+             params: Sequence[str] = inputs.DEFAULT_PARAMETERS, max_iterations: int = 50,
              progress: Callable[[int, int], None] | None = None, *,
              marker_noise: float = MARKER_NOISE, length_noise: float = LENGTH_NOISE,
              crossval: bool = False) -> Identified:

@@ -68,6 +68,14 @@ def thinnest_sections(robot: Robot) -> dict[str, float]:
             for t in robot.tendons}
 
 
+def max_tension(robot: Robot, name: str, young_modulus=None):
+    """The largest tension (N) a reading of tendon ``name`` may have: half the axial stiffness
+    E·A of the thinnest section it spans, with ``young_modulus`` (an array: one per sample)
+    where it is not the robot file's."""
+    E = robot.rod.young_modulus if young_modulus is None else young_modulus
+    return MAX_COMPRESSION * E * thinnest_sections(robot)[name]
+
+
 def tension_error(robot: Robot, name: str, T: float, young_modulus: float | None = None
                   ) -> str | None:
     """Why tension ``T`` (N) of the robot's tendon ``name`` cannot be a reading, or None.
@@ -79,9 +87,9 @@ def tension_error(robot: Robot, name: str, T: float, young_modulus: float | None
         return f"tension {name} = {T}: not a finite number"
     if T < 0:
         return f"tension {name} = {T:g} N is negative (a tendon cannot push; slack is 0)"
-    EA = (robot.rod.young_modulus if young_modulus is None else young_modulus) \
-        * thinnest_sections(robot)[name]
-    if T > MAX_COMPRESSION * EA:
+    top = max_tension(robot, name, young_modulus)
+    if T > top:
+        EA = top / MAX_COMPRESSION
         return (f"tension {name} = {T:g} N would shorten the rod by more than half where it is "
                 f"thinnest (T = {T / EA:.2g} E·A, E·A = {EA:.3g} N there): tensions are in "
                 f"newtons")
@@ -356,6 +364,8 @@ def check_unknowns(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unk
 #: parameters :func:`~tendonsense.identification.identify` fits by name;
 #: ``friction_<tendon>`` fits one tendon's μ
 PARAMETERS = ("young_modulus", "density", "friction")
+#: what :func:`~tendonsense.identification.identify` fits unless told
+DEFAULT_PARAMETERS = ("young_modulus", "density")
 
 
 def parameter_names(robot: Robot) -> tuple[str, ...]:

@@ -44,8 +44,9 @@ class OnlineEstimator:
     The first sample, with no earlier state to start from, may take a full solve with load
     continuation.
     A bad reading (:mod:`tendonsense.inputs`' rules: non-finite, a negative tension or one
-    that would crush the rod, a tendon pulled in by more than its length) is answered at once, not converged, with the reason in ``note``; a sample that fails
-    leaves the state as it was, so the next one starts from the last good sample.
+    that would crush the rod, a tendon pulled in by more than its length) is answered at
+    once, not converged, with the reason in ``note``; a sample that fails leaves the state as
+    it was, so the next one starts from the last good sample.
     Overdetermined problems (more measured tendons than unknowns) take Gauss–Newton SQP
     steps on the same fast path; their rescue is the least-squares solver of
     :mod:`tendonsense.estimation` with the same evaluation budget per equilibrium solve.

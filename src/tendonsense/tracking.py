@@ -16,8 +16,7 @@ from .estimation import estimate_problem
 from .fastpath import (MAX_EVALUATIONS, MAX_JACOBIANS, Carry, Track,  # noqa: F401 (API)
                        follower, stacked_drives, stepper, tracker, unpack_row)
 from .forward import model_for, why_not
-from .inputs import (MAX_COMPRESSION, Noise, check_noise, tendon_vector, tension_error,
-                     thinnest_sections)
+from .inputs import Noise, check_noise, max_tension, tendon_vector, tension_error
 from .model import VALUE_NAMES
 from .online import RESCUE_BUDGET, OnlineEstimator
 from .problem import Problem, band  # noqa: F401 (API)
@@ -42,7 +41,8 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
     on its own from the straight rod (load continuation, a bounded budget once an earlier
     sample has converged) and the scan goes on again after it, from that solution; a bad
     reading (:mod:`tendonsense.inputs`' rules: non-finite, a negative tension or one that
-    would crush the rod, a tendon pulled in beyond its length) is marked with the reason. A square problem's 1-σ band is exact on the first sample of every
+    would crush the rod, a tendon pulled in beyond its length) is marked with the reason. A
+    square problem's 1-σ band is exact on the first sample of every
     :data:`~tendonsense.fastpath.EXACT_EVERY` and within a few per cent between (the
     quasi-Newton inverse). ``progress(done, total)`` is called per
     chunk (:func:`series_chunks` hands over each chunk's estimates as it finishes)."""
@@ -347,7 +347,7 @@ def batch_inputs(robot: Robot, base, tensions, point_forces, values):
     varied = varied_values(base, values, n)
     E = np.broadcast_to(varied.get("young_modulus", robot.rod.young_modulus), (n,))
     for j, name in enumerate(names):  # each sample's tensions by the rule, with its own E
-        bad = (T[:, j] < 0) | (T[:, j] > MAX_COMPRESSION * E * thinnest_sections(robot)[name])
+        bad = (T[:, j] < 0) | (T[:, j] > max_tension(robot, name, E))
         if bad.any():
             k = int(np.argmax(bad))
             raise ValueError(f"batch: sample {k + 1}: "

@@ -432,9 +432,8 @@ def explore(robot: Robot, port: int = 8080, host: str = "127.0.0.1", max_tension
     (:func:`~tendonsense.inputs.tension_error`), whichever is less."""
     viewer = Viewer(robot, port, host, title=f"{robot.name}: forward statics")
     gui, L = viewer.server.gui, robot.rod.length
-    area = inputs.thinnest_sections(robot)
-    top = {n: min(max_tension, np.floor(100 * inputs.MAX_COMPRESSION * robot.rod.young_modulus
-                                         * area[n]) / 100) for n in robot.tendon_names}
+    top = {n: min(max_tension, np.floor(100 * inputs.max_tension(robot, n)) / 100)
+           for n in robot.tendon_names}
     sliders = {n: gui.add_slider(f"tension {n} (N)", min=0.0, max=top[n], step=0.01,
                                  initial_value=0.0) for n in robot.tendon_names}
     force_X = gui.add_slider("force X (m)", min=0.0, max=L, step=L / 200, initial_value=L)
