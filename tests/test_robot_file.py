@@ -336,3 +336,17 @@ def test_the_thinnest_section_a_tendon_spans():
     assert tension_error(robot, "long", 0.99 * limit) is None
     assert "tensions are in newtons" in tension_error(robot, "long", 1.01 * limit)
     assert tension_error(robot, "long", 1.01 * limit, young_modulus=math.inf) is None
+
+
+def test_a_robot_hashes_as_its_fields_and_is_sent_without_its_hash(prototype):
+    """A robot's hash is kept (it keys the caches a reading consults) but stays that of its
+    fields: an equal copy hashes alike, another value does not, and a pickle (a Dask task)
+    carries no hash of the sending process (str hashes are per process)."""
+    import pickle
+    fields = tuple(getattr(prototype, f.name) for f in dataclasses.fields(prototype))
+    assert hash(prototype) == hash(fields) == hash(prototype.replace())
+    other = prototype.with_parameters(young_modulus=2 * prototype.rod.young_modulus)
+    assert other != prototype and hash(other) != hash(prototype)
+    sent = pickle.loads(pickle.dumps(prototype))
+    assert "_hash" not in sent.__dict__ and sent == prototype
+    assert hash(sent) == hash(prototype)

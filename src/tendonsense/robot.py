@@ -120,6 +120,15 @@ class Robot:
     elements: tuple[float, ...] = ()  # interior element bounds; empty: the global basis
     masses: tuple[Mass, ...] = ()
 
+    def __hash__(self) -> int:  # kept: a robot keys the caches consulted on every reading
+        if (h := self.__dict__.get("_hash")) is None:
+            h = self.__dict__["_hash"] = hash(tuple(getattr(self, f.name)
+                                                    for f in dataclasses.fields(self)))
+        return h
+
+    def __getstate__(self) -> dict:  # a hash of str fields is per process: not sent on
+        return {k: v for k, v in self.__dict__.items() if k != "_hash"}
+
     @cached_property
     def tendon_names(self) -> tuple[str, ...]:
         return tuple(t.name for t in self.tendons)
