@@ -304,3 +304,17 @@ def test_a_warm_start_imports_no_lapack(tmp_path):
     assert all(o.returncode == 0 for o in outs), [o.stderr[-2000:] for o in outs]
     assert outs[1].stdout.splitlines()[-1] != "[]"  # the LAPACK program imported it
     assert outs[2].stdout.splitlines()[-1] == "[]", outs[2].stdout[-500:]
+
+
+def test_a_series_bounds_each_samples_tension_with_its_own_modulus(prototype):
+    """A series or batch with its own E per sample checks each tension against half of that
+    sample's E·A (39.3 N at the tip with the file's E): 20 N breaks the rule at E/4, 45 N
+    does not at 2 E (a sample the file's E alone would have refused)."""
+    from tendonsense.tracking import estimate_batch, estimate_series
+    prob = estimation.problem(prototype, ["t1"], [PointForceUnknown(0.25, (0, 0, -1))])
+    E = prototype.rod.young_modulus * np.array([0.25, 2.0])
+    for run in (estimate_series, estimate_batch):
+        out = run(prob, [{"t1": -0.01}] * 2, [{"t1": 20.0}, {"t1": 45.0}],
+                  values={"young_modulus": E})
+        assert "would shorten the rod" in out[0].note and not out[0].converged
+        assert not out[1].note.startswith("bad value"), out[1].note

@@ -221,7 +221,8 @@ def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Nois
     With located unknowns ``x0`` is not used: their X is searched over its whole range."""
     check_noise(noise)
     model = prob.model
-    T, y_all = prob.readings(displacements, tensions)
+    T, y_all = prob.readings(displacements, tensions,
+                             None if values is None else float(values.young_modulus))
     drive = prob.drive(T, y_all[list(prob.measured)])
     values = model.values if values is None else values
     if prob.located:

@@ -162,17 +162,18 @@ def displacements(robot: Robot, values: Mapping[str, float] | None,
 
 
 def readings(robot: Robot, displacements_: Mapping[str, float],
-             tensions_: Mapping[str, float], rest: np.ndarray | None = None
-             ) -> tuple[np.ndarray, np.ndarray]:
+             tensions_: Mapping[str, float], rest: np.ndarray | None = None,
+             young_modulus: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(T, y)`` per tendon of one reading: measured length changes ``displacements_`` (m)
     and tensions ``tensions_`` (N) by tendon name; every measured tendon needs its tension.
-    ``rest``: the tendons' :func:`rest_lengths`, if known."""
+    ``rest``: the tendons' :func:`rest_lengths`, if known; ``young_modulus``: as for
+    :func:`tension_error`."""
     missing = [n for n in displacements_ if n not in (tensions_ or {})]
     if missing:
         raise ValueError(f"tension {missing[0]}: missing: the tendon's length change is "
                          f"measured, its tension must be too (a slack tendon is 0)")
     y = displacements(robot, displacements_, rest)
-    return tensions(robot, tensions_), y
+    return tensions(robot, tensions_, young_modulus), y
 
 
 #: the directions a tendon may slide through its guides

@@ -71,15 +71,17 @@ class Problem:
         """Every tendon's path length on the straight rod (l* of eq. 9), m."""
         return inputs.rest_lengths(self.robot)
 
-    def readings(self, displacements: Mapping[str, float], tensions: Mapping[str, float]
-                 ) -> tuple[np.ndarray, np.ndarray]:
-        """``(T, y)`` per tendon of one reading, by the rules of :mod:`tendonsense.inputs`;
-        every measured tendon needs its length change and its tension."""
+    def readings(self, displacements: Mapping[str, float], tensions: Mapping[str, float],
+                 young_modulus: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(T, y)`` per tendon of one reading, by the rules of :mod:`tendonsense.inputs`
+        (``young_modulus``: the sample's own, where it is not the robot file's); every
+        measured tendon needs its length change and its tension."""
         names = self.robot.tendon_names
         for j in self.measured:
             if names[j] not in displacements:
                 raise ValueError(f"displacement {names[j]}: missing: the tendon is measured")
-        return inputs.readings(self.robot, displacements, tensions, self.rest_lengths)
+        return inputs.readings(self.robot, displacements, tensions, self.rest_lengths,
+                               young_modulus)
 
     def drive(self, tensions, targets) -> Drive:
         return Drive(np.asarray(tensions, float), self.known_forces, self.load_X, self.gravity,

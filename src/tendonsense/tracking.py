@@ -98,9 +98,10 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
     varied = varied_values(model.values, values, n)
     T, Y = np.zeros((n, len(robot.tendons))), np.zeros((n, len(robot.tendons)))
     out: list[SampleEstimate | None] = [None] * n
+    E = varied.get("young_modulus", np.full(n, None))
     for k in range(n):
-        try:
-            T[k], Y[k] = prob.readings(displacements[k], tensions[k])
+        try:  # each sample's tension bound with its own E
+            T[k], Y[k] = prob.readings(displacements[k], tensions[k], E[k])
         except ValueError as exc:
             out[k] = SampleEstimate.failed(prob, f"bad value: {exc}")
     tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.any(T != 0, axis=0)))))
