@@ -506,3 +506,25 @@ def test_the_papers_experiments_on_another_robot_say_so(capsys):
     assert "is not its robot file" in capsys.readouterr().out
     main(["experiments", PROTOTYPE])
     assert "is not its robot file" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("kind, header, named", [
+    ("log", "time,tension_t1,tension_t2,tension_t3,displacement_T1", "no tendon 'T1'"),
+    ("log", "tension_t1,tension_t2,tension_t3,displacement_t1,marker_tp_x,marker_tp_y,"
+            "marker_tp_z", "no marker 'tp' in the robot (its markers: mid, three_quarter, tip)"),
+    ("snapshots", "tension_T1,tension_t2,tension_t3,marker_tip_x,marker_tip_y,marker_tip_z",
+     "no tendon 'T1'"),
+    ("sets", "young_modulus,friction_T2", "no tendon 'T2'")])
+def test_a_column_naming_another_tendon_lists_the_robots(prototype, tmp_path, kind, header,
+                                                        named):
+    """A mistyped tendon or marker in a column is named with the robot's own, on each reader
+    (a log, snapshots, parameter sets)."""
+    from tendonsense.readings import read_parameter_sets, read_readings, read_snapshots
+    path = tmp_path / f"{kind}.csv"
+    path.write_text(header + "\n" + ",".join(["0.1"] * len(header.split(","))) + "\n")
+    read = {"log": read_readings, "snapshots": read_snapshots, "sets": read_parameter_sets}
+    with pytest.raises(ValueError) as e:
+        read[kind](path, prototype)
+    assert named in str(e.value)
+    if "tendon" in named:
+        assert "(its tendons: t1, t2, t3)" in str(e.value)

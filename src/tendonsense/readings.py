@@ -47,6 +47,22 @@ class ReadingsError(ValueError):
     """A readings file that cannot be used at all (bad header, unreadable)."""
 
 
+def no_such(source, col: str, robot: Robot, kinds=("tension", "displacement", "sliding"),
+            markers: bool = True) -> str | None:
+    """The message for a column ``<kind>_<name>`` whose tendon (or, with ``markers``,
+    ``marker_<name>_<axis>`` whose marker) the robot does not have, naming those it has; None
+    for any other column."""
+    kind, _, name = col.partition("_")
+    if kind in kinds and name not in robot.tendon_names:
+        return (f"{source}: column {col!r}: no tendon {name!r} in the robot (its tendons: "
+                f"{', '.join(robot.tendon_names) or 'none'})")
+    if markers and kind == "marker" and name[-2:] in ("_x", "_y", "_z") and \
+            name[:-2] not in robot.marker_names:
+        return (f"{source}: column {col!r}: no marker {name[:-2]!r} in the robot (its "
+                f"markers: {', '.join(robot.marker_names) or 'none'})")
+    return None
+
+
 @dataclass(frozen=True)
 class Sample:
     """One row of a readings file; ``error`` names the bad column of a row that is skipped."""
@@ -92,13 +108,11 @@ def parse_header(header: Sequence[str], robot: Robot, source) -> Columns:
         kind, _, name = col.partition("_")
         if col == "time":
             continue
+        if why := no_such(source, col, robot):
+            raise ReadingsError(why)
         if kind == "sliding":
-            if name not in tendons:
-                raise ReadingsError(f"{source}: column {col!r}: no tendon {name!r} in the robot")
             continue
         if kind in ("tension", "displacement"):
-            if name not in tendons:
-                raise ReadingsError(f"{source}: column {col!r}: no tendon {name!r} in the robot")
             if kind == "displacement":
                 measured.append(name)
         elif kind == "marker" and name[-2:] in ("_x", "_y", "_z") and name[:-2] in markers:
@@ -273,9 +287,9 @@ def read_snapshots(path: str | Path, robot: Robot, young_modulus: float | None =
                   and name in robot.tendon_names)
               or (kind == "marker" and name[:-2] in markers and name[-2:] in ("_x", "_y", "_z")))
         if not ok:
-            raise SnapshotError(f"{path}: column {col!r} is not tension_<tendon>, "
-                                f"displacement_<tendon>, sliding_<tendon>, "
-                                f"load_X/_fx/_fy/_fz or marker_<marker>_x/_y/_z")
+            raise SnapshotError(no_such(path, col, robot) or (
+                f"{path}: column {col!r} is not tension_<tendon>, displacement_<tendon>, "
+                f"sliding_<tendon>, load_X/_fx/_fy/_fz or marker_<marker>_x/_y/_z"))
     missing = [f"tension_{n}" for n in robot.tendon_names if f"tension_{n}" not in header]
     if missing:
         raise SnapshotError(f"{path}: no column {', '.join(missing)}: every tendon's tension "
@@ -524,7 +538,7 @@ def read_parameter_sets(path: str | Path, robot: Robot) -> ParameterSets:
                 kind in ("tension", "friction") and name in tendons):
             numeric.append(col)
         elif col not in DESCRIPTIVE:
-            raise ReadingsError(
+            raise ReadingsError(no_such(path, col, robot, ("tension", "friction"), False) or
                 f"{path}: column {col!r} is not tension_<tendon>, young_modulus, "
                 f"poisson_ratio, density, friction, friction_<tendon>, load_X/_fx/_fy/_fz or "
                 f"descriptive ({', '.join(DESCRIPTIVE)})")
