@@ -528,3 +528,33 @@ def test_a_column_naming_another_tendon_lists_the_robots(prototype, tmp_path, ki
     assert named in str(e.value)
     if "tendon" in named:
         assert "(its tendons: t1, t2, t3)" in str(e.value)
+
+
+def test_an_output_that_is_an_input_is_refused_and_the_input_kept(tmp_path):
+    """``-o`` or ``--plot`` naming one of the command's own inputs (the log, the sets, the
+    schedule, the robot file) is refused before anything runs, the input unchanged; and so
+    in Python for a log's estimates."""
+    from tendonsense import load_robot
+    from tendonsense.logs import estimate_file
+    robot = tmp_path / "robot.toml"
+    robot.write_text(PROTOTYPE.read_text())
+    log = tmp_path / "log.csv"
+    log.write_text("time,tension_t1,tension_t2,tension_t3,displacement_t1\n0,2,0,0,-0.003\n")
+    sets = tmp_path / "sets.csv"
+    sets.write_text("tension_t1\n2\n")
+    schedule = tmp_path / "schedule.csv"
+    schedule.write_text("time,tension_t1\n0,2\n")
+    before = {p: p.read_bytes() for p in (robot, log, sets, schedule)}
+    for args, named in (
+            (["estimate", robot, "--readings", log, "--unknown", "0.25,0,0,-1", "-o",
+              tmp_path / "." / "log.csv"], "is --readings"),
+            (["sweep", robot, sets, "-o", sets], "is the parameter sets"),
+            (["simulate", robot, "--tensions", schedule, "--duration", "1", "-o", schedule],
+             "is --tensions"),
+            (["solve", robot, "--tension", "t1=2", "--plot", robot], "is the robot file")):
+        p = subprocess.run([sys.executable, "-m", "tendonsense.cli", *map(str, args)],
+                           capture_output=True, text=True, timeout=60)
+        assert p.returncode == 1 and named in p.stderr and "overwrite" in p.stderr, p.stderr
+    summary = estimate_file(load_robot(robot), log, log, [PointForceUnknown(0.25, (0, 0, -1))])
+    assert "the log itself" in summary.error
+    assert {p: p.read_bytes() for p in before} == before

@@ -594,6 +594,30 @@ def _check(args, robot) -> None:
         _check_analysis(args, robot)
     if (cmd == "view" or getattr(args, "view", False)) and not 0 < args.port < 65536:
         raise UsageError(f"tendonsense {cmd}: --port {args.port}: not a port number")
+    _not_an_input(args)
+
+
+#: a command's output files and input files (argument name, as the user knows it)
+OUTPUT_FILES = (("plot", "--plot"), ("results", "-o/--results"), ("estimates", "-o/--estimates"),
+                ("log", "-o/--log"), ("fitted_robot", "-o/--fitted-robot"))
+INPUT_FILES = (("robot", "the robot file"), ("sets", "the parameter sets"),
+               ("readings", "--readings"), ("tensions", "--tensions"),
+               ("snapshots", "--snapshots"), ("csv", "the table"))
+
+
+def _not_an_input(args) -> None:
+    """No output file is one of the command's input files (it would be overwritten)."""
+    def paths(names):
+        for name, flag in names:
+            value = getattr(args, name, None)
+            for v in value if isinstance(value, list) else [value]:
+                if isinstance(v, (str, Path)) and str(v) != "-" and Path(v).is_file():
+                    yield flag, v
+    for out_flag, out in paths(OUTPUT_FILES):
+        for in_flag, inp in paths(INPUT_FILES):
+            if os.path.samefile(out, inp):
+                raise ValueError(f"{out_flag} {out}: is {in_flag} ({inp}): writing it would "
+                                 f"overwrite an input")
 
 
 def _check_identify(args, robot):

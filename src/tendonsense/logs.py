@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import itertools
+import os
 from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
@@ -131,6 +132,8 @@ def estimate_file(robot: Robot, log: str | Path, out: str | Path, unknowns: Sequ
     cannot be used (unreadable, a bad header, too few measured tendons for ``unknowns``) is
     not raised but returned as :attr:`LogSummary.error`, and nothing is written."""
     try:
+        if Path(out).is_file() and Path(log).is_file() and os.path.samefile(out, log):
+            raise ValueError(f"its output {out} is the log itself (it would be overwritten)")
         measured, samples = read_readings(log, robot)
         try:
             check_unknowns(robot, measured, unknowns)
