@@ -395,15 +395,26 @@ def test_the_analyses_run_from_any_folder(tmp_path):
 
 # ------------------------------------------------------ a result that is not a solution
 
+def short_of_iterations(folder):
+    """The prototype with a solver allowed 2 iterations per stage: 38 N at the tip (within the
+    rules) is then no solution."""
+    robot = folder / "short.toml"
+    robot.write_text(PROTOTYPE.read_text() + "\n[solver]\nmax_iterations = 2\n")
+    return robot
+
+
 def test_a_solve_that_did_not_converge_is_not_dressed_as_one(tmp_path):
-    p = cli("solve", PROTOTYPE, "--tension", "t1=2", "--point-force=0.25,0,0,-100", cwd=tmp_path)
+    robot = short_of_iterations(tmp_path)
+    tmp_path = tmp_path / "run"
+    tmp_path.mkdir()
+    p = cli("solve", robot, "--tension", "t1=2", "--point-force=0.25,0,0,-38", cwd=tmp_path)
     assert p.returncode == 3
     head, *rest = p.stdout.splitlines()
     assert "NOT CONVERGED: " in head and len(head.split("NOT CONVERGED: ")[1]) > 20
     assert "residual" in head or "strain" in head
     assert not any("markers" in line or "tip (X" in line for line in rest)
     assert list(tmp_path.iterdir()) == []  # nothing written without --plot
-    p = cli("solve", PROTOTYPE, "--tension", "t1=2", "--point-force=0.25,0,0,-100", "--json",
+    p = cli("solve", robot, "--tension", "t1=2", "--point-force=0.25,0,0,-38", "--json",
             "--plot", tmp_path / "s.png")
     out = json.loads(p.stdout)
     assert out["converged"] is False and out["note"] and p.returncode == 3
@@ -558,3 +569,29 @@ def test_an_output_that_is_an_input_is_refused_and_the_input_kept(tmp_path):
     summary = estimate_file(load_robot(robot), log, log, [PointForceUnknown(0.25, (0, 0, -1))])
     assert "the log itself" in summary.error
     assert {p: p.read_bytes() for p in before} == before
+
+
+def test_a_load_in_gram_force_is_refused_on_every_path(prototype, tmp_path):
+    """A known load of 65 gF typed as 65 N (over half of E·A = 78.5 N at the tip) is refused
+    like such a tension: on the command line, in Python, in a sweep set (with the set's own E:
+    at 2 MPa it is taken), a snapshot and a batch."""
+    from tendonsense.readings import read_parameter_sets, read_snapshots
+    from tendonsense.tracking import solve_batch
+    p = cli("solve", PROTOTYPE, "--tension", "t1=2", "--point-force=0.25,0,0,-65",
+            cwd=tmp_path)
+    assert p.returncode == 1 and "forces are in newtons" in p.stderr and not p.stdout
+    with pytest.raises(ValueError, match="point force 1 of 65 N"):
+        solve(prototype, {"t1": 2.0}, [(0.25, (0, 0, -65.0))])
+    sets = tmp_path / "sets.csv"
+    sets.write_text("tension_t1,young_modulus,load_X,load_fx,load_fy,load_fz\n"
+                    "2,2e6,0.25,0,0,-65\n2,1e6,0.25,0,0,-65\n")
+    with pytest.raises(ValueError, match="set 2: the load of 65 N"):
+        read_parameter_sets(sets, prototype)
+    snaps = tmp_path / "snaps.csv"
+    snaps.write_text("tension_t1,tension_t2,tension_t3,displacement_t1,load_X,load_fx,load_fy,"
+                     "load_fz\n2,0,0,-0.003,0.25,0,0,-65\n")
+    with pytest.raises(ValueError, match="snapshot row 1: the load of 65 N"):
+        read_snapshots(snaps, prototype)
+    with pytest.raises(ValueError, match="sample 2: point force 1 of 65 N"):
+        solve_batch(prototype, np.full((2, 3), 1.0),
+                    [(0.25, np.array([[0, 0, -0.5], [0, 0, -65.0]]))])

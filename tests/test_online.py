@@ -50,7 +50,9 @@ def test_a_tension_the_material_cannot_take_is_refused(prototype):
     with pytest.raises(ValueError, match="would shorten the rod by more than half"):
         solve(prototype, {"t1": 40.0})  # E·A / 2 = 39.3 N at the tip
     assert solve(prototype, {"t1": 39.0}).converged
-    assert not solve(prototype, {"t1": 2.0}, [(0.25, (0, 0, -100.0))]).converged
+    with pytest.raises(ValueError, match="forces are in newtons"):  # 100 gF typed as N
+        solve(prototype, {"t1": 2.0}, [(0.25, (0, 0, -100.0))])
+    assert solve(prototype, {"t1": 2.0}, [(0.25, (0, 0, -38.0))]).converged
 
 
 def stream(args, text):

@@ -58,14 +58,18 @@ def rest_lengths(robot: Robot) -> np.ndarray:
 MAX_COMPRESSION = 0.5
 
 
-@lru_cache(maxsize=64)
-def thinnest_sections(robot: Robot) -> dict[str, float]:
-    """The area (m²) of the thinnest section of the rod between its base and each tendon's
-    anchor, by tendon name: a tension T shortens the rod by about T / E·A there."""
+def thinnest_area(robot: Robot, X: float) -> float:
+    """The area (m²) of the thinnest section of the rod between its base and ``X`` (m): a
+    force F along the rod at X stretches or shortens it by about F / E·A there."""
     rod = robot.rod
     knots = np.array([x for x, _ in rod.radius_knots])
-    return {t.name: float(rod.area(np.append(knots[knots <= t.disks[-1]], t.disks[-1])).min())
-            for t in robot.tendons}
+    return float(rod.area(np.append(knots[knots <= X], X)).min())
+
+
+@lru_cache(maxsize=64)
+def thinnest_sections(robot: Robot) -> dict[str, float]:
+    """:func:`thinnest_area` up to each tendon's anchor, by tendon name."""
+    return {t.name: thinnest_area(robot, t.disks[-1]) for t in robot.tendons}
 
 
 def max_tension(robot: Robot, name: str, young_modulus=None):
@@ -93,6 +97,21 @@ def tension_error(robot: Robot, name: str, T: float, young_modulus: float | None
         return (f"tension {name} = {T:g} N would shorten the rod by more than half where it is "
                 f"thinnest (T = {T / EA:.2g} E·A, E·A = {EA:.3g} N there): tensions are in "
                 f"newtons")
+    return None
+
+
+def force_error(robot: Robot, what: str, X: float, force, young_modulus=None) -> str | None:
+    """Why a known point force ``force`` (N, 3) at ``X`` (m) cannot be one, or None: as for a
+    tension, at most half the axial stiffness E·A of the thinnest section between the base
+    and X (a unit slip: gram-force typed as newtons). ``young_modulus`` as for
+    :func:`tension_error`."""
+    F = float(np.linalg.norm(force))
+    E = robot.rod.young_modulus if young_modulus is None else young_modulus
+    EA = E * thinnest_area(robot, X)
+    if F > MAX_COMPRESSION * EA:
+        return (f"{what} of {F:g} N would stretch or shorten the rod by more than half where "
+                f"it is thinnest (F = {F / EA:.2g} E·A, E·A = {EA:.3g} N there): forces are "
+                f"in newtons")
     return None
 
 
@@ -221,8 +240,9 @@ def _sequence(items, what: str, example: str) -> list:
     return list(items)
 
 
-def check_point_forces(robot: Robot, point_forces: Sequence[PointForce]):
-    """Validated ``(X (n,), forces (n, 3))`` of known point forces."""
+def check_point_forces(robot: Robot, point_forces: Sequence[PointForce], young_modulus=None):
+    """Validated ``(X (n,), forces (n, 3))`` of known point forces (:func:`force_error`;
+    ``young_modulus`` as for :func:`tension_error`)."""
     Xs, Fs = [], []
     point_forces = _sequence(point_forces, "point forces", "[(X, (fx, fy, fz))]")
     if len(point_forces) == 2 and isinstance(point_forces[0], (int, float, np.number)):
@@ -239,6 +259,8 @@ def check_point_forces(robot: Robot, point_forces: Sequence[PointForce]):
         f = np.asarray(f, float).reshape(-1)
         if f.size != 3 or not np.all(np.isfinite(f)):
             raise ValueError(f"point force {i + 1}: the force must be 3 finite numbers")
+        if error := force_error(robot, f"point force {i + 1}", X, f, young_modulus):
+            raise ValueError(error)
         Xs.append(X)
         Fs.append(f)
     return np.array(Xs, float), np.array(Fs, float).reshape(-1, 3)

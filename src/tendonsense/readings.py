@@ -15,8 +15,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .inputs import (SLIDING, Unknown, displacement_error, marker_error, rest_lengths,
-                     tension_error)
+from .inputs import (SLIDING, Unknown, displacement_error, force_error, marker_error,
+                     rest_lengths, tension_error)
 from .result import SampleEstimate
 from .robot import Robot, value_error
 
@@ -342,6 +342,8 @@ def read_snapshots(path: str | Path, robot: Robot, young_modulus: float | None =
                 raise SnapshotError(f"{path}: snapshot row {i}: load_X = {load_vals[0]:g} is "
                                     f"outside the rod")
             load = (load_vals[0], tuple(load_vals[1:]))
+            if error := force_error(robot, "the load", *load, young_modulus):
+                raise SnapshotError(f"{path}: snapshot row {i}: {error}")
         sliding = {}
         for n in robot.tendon_names:
             word = (row.get(f"sliding_{n}") or "").strip().lower()
@@ -572,6 +574,8 @@ def read_parameter_sets(path: str | Path, robot: Robot) -> ParameterSets:
             if error:
                 raise ReadingsError(f"{path}: set {i + 1}: {error}")
             data[i, j] = v
+        if load and (error := force_error(robot, "the load", *_load_of(data[i], numeric), E)):
+            raise ReadingsError(f"{path}: set {i + 1}: {error}")
     column = {c: data[:, j] for j, c in enumerate(numeric)}
     n = len(rows)
     T = np.stack([column.get(f"tension_{t}", np.zeros(n)) for t in tendons], axis=1)
@@ -587,6 +591,12 @@ def read_parameter_sets(path: str | Path, robot: Robot) -> ParameterSets:
     loads = ([(column["load_X"], np.stack([column[c] for c in LOAD_COLUMNS[1:]], axis=1))]
              if load else [])
     return ParameterSets(header, [list(r) for r in rows], T, values, loads)
+
+
+def _load_of(values, columns) -> tuple[float, list[float]]:
+    """``(X, (fx, fy, fz))`` of a row's load columns."""
+    X, *F = (values[columns.index(c)] for c in LOAD_COLUMNS)
+    return X, F
 
 
 def sweep_rows(robot: Robot, sets: ParameterSets, result) -> tuple[list[str], list[list]]:
