@@ -595,3 +595,26 @@ def test_a_load_in_gram_force_is_refused_on_every_path(prototype, tmp_path):
     with pytest.raises(ValueError, match="sample 2: point force 1 of 65 N"):
         solve_batch(prototype, np.full((2, 3), 1.0),
                     [(0.25, np.array([[0, 0, -0.5], [0, 0, -65.0]]))])
+
+
+def test_a_length_noise_in_millimetres_is_refused(prototype, tmp_path):
+    """A length read-out noise of 0.1 (0.1 mm typed as metres: 40 % of a tendon's length) is
+    refused on the command line (simulate's and estimate's) and in Python (an estimate, the
+    live estimator, a calibration)."""
+    for args in (["simulate", PROTOTYPE, "--tension", "t1=2", "--duration", "0.5",
+                  "--noise-length", "0.1", "-o", tmp_path / "sim.csv"],
+                 ["estimate", PROTOTYPE, "--displacement", "t1=-0.003", "--tension", "t1=2",
+                  "--unknown", "0.25,0,0,-1", "--length-noise", "0.1"]):
+        p = cli(*args)
+        assert p.returncode == 1 and "lengths are in metres" in p.stderr, p.stderr
+    assert list(tmp_path.iterdir()) == []
+    prob = problem(prototype, ["t1"], [PointForceUnknown(0.25, (0, 0, -1))])
+    with pytest.raises(ValueError, match="of the shortest tendon's length"):
+        estimate(prototype, {"t1": -0.003}, {"t1": 2.0}, [PointForceUnknown(0.25, (0, 0, -1))],
+                 noise=Noise(length=0.1))
+    with pytest.raises(ValueError, match="of the shortest tendon's length"):
+        OnlineEstimator(prob, Noise(length=0.05))
+    with pytest.raises(ValueError, match="of the shortest tendon's length"):
+        identify(prototype, [Snapshot(dict(t1=2.0, t2=0.0, t3=0.0),
+                                      displacements={"t1": -0.003})], length_noise=0.1)
+    assert OnlineEstimator(prob, Noise(length=1e-3)).noise.length == 1e-3

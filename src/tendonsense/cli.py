@@ -594,6 +594,10 @@ def _check(args, robot) -> None:
         _check_analysis(args, robot)
     if (cmd == "view" or getattr(args, "view", False)) and not 0 < args.port < 65536:
         raise UsageError(f"tendonsense {cmd}: --port {args.port}: not a port number")
+    for name, flag in (("length_noise", "--length-noise"), ("noise_length", "--noise-length")):
+        if getattr(args, name, None) and (
+                error := inputs.length_noise_error(robot, flag, getattr(args, name))):
+            raise ValueError(error)
     _not_an_input(args)
 
 

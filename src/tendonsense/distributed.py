@@ -311,7 +311,7 @@ def estimate_logs(client, robot: Robot, logs: Sequence[str | Path], out_dir: str
         raise ValueError("estimate_logs: no logs")
     check_point_forces(robot, point_forces)
     check_unknowns(robot, robot.tendon_names, unknowns)
-    check_noise(noise)
+    check_noise(noise, robot)
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
         raise ValueError(f"{out_dir}: no such folder")

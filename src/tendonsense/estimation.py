@@ -219,7 +219,7 @@ def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Nois
     bounds the evaluations of each equilibrium solve (:func:`~tendonsense.statics.solve_system`),
     ``total_budget`` those of a least-squares fit's solves together.
     With located unknowns ``x0`` is not used: their X is searched over its whole range."""
-    check_noise(noise)
+    check_noise(noise, prob.robot)
     model = prob.model
     T, y_all = prob.readings(displacements, tensions,
                              None if values is None else float(values.young_modulus))

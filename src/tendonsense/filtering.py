@@ -209,7 +209,7 @@ class MotionFilter:
         if prob.located:
             raise ValueError("estimation in motion takes forces at known points (a location "
                              "range ('A:B' or '?') is estimated quasi-statically only)")
-        check_noise(noise)
+        check_noise(noise, prob.robot)
         if not (walk > 0 and np.isfinite(walk)):
             raise ValueError(f"force walk: must be a number > 0 (per √s), got {walk!r}")
         self.problem, self.noise, self.walk = prob, noise, walk

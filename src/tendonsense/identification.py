@@ -323,6 +323,8 @@ def _setup(robot: Robot, snapshots: Sequence[Snapshot], params, marker_noise, le
     for noise, what in ((marker_noise, "marker noise"), (length_noise, "length noise")):
         if not (np.isfinite(noise) and noise > 0):
             raise ValueError(f"{what} must be a positive number of metres, got {noise}")
+    if error := inputs.length_noise_error(robot, "length noise", length_noise):
+        raise ValueError(error)
     signs = [inputs.friction_signs(robot, s.sliding) for s in snapshots]
     return _Setup(model, tuple(params), drives, markers, lengths, signs,
                   (1.0 / marker_noise, 1.0 / length_noise),
@@ -505,6 +507,8 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
     for noise, what in ((marker_noise, "marker noise"), (length_noise, "length noise")):
         if not (np.isfinite(noise) and noise > 0):
             raise ValueError(f"{what} must be a positive number of metres, got {noise}")
+    if error := inputs.length_noise_error(robot, "length noise", length_noise):
+        raise ValueError(error)
     names = robot.tendon_names
     measured = [n for n in names if n in rows[0].displacements]
     markers = [m for m in robot.marker_names if m in rows[0].markers]

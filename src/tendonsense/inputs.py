@@ -326,11 +326,30 @@ class Noise:
 FRACTION = "relative, must be a fraction under 1 (0.01 is 1 %)"
 
 
-def check_noise(noise) -> Noise:
-    """``noise`` if it is a :class:`Noise`, or a ValueError saying what is expected."""
+#: a length read-out noise is under this fraction of the shortest tendon's length
+MAX_LENGTH_NOISE = 0.1
+
+
+def length_noise_error(robot: Robot, what: str, sigma: float) -> str | None:
+    """Why ``sigma`` (m) cannot be the standard deviation of a tendon length's read-out noise
+    on ``robot``, or None: at least :data:`MAX_LENGTH_NOISE` of its shortest tendon's length is
+    a unit slip (millimetres typed as metres)."""
+    shortest = float(np.min(rest_lengths(robot))) if robot.tendons else math.inf
+    if sigma >= MAX_LENGTH_NOISE * shortest:
+        return (f"{what} {sigma:g} m is {sigma / shortest:.0%} of the shortest tendon's length "
+                f"({shortest:.3g} m): lengths are in metres (0.1 mm = 0.0001)")
+    return None
+
+
+def check_noise(noise, robot: Robot | None = None) -> Noise:
+    """``noise`` if it is a :class:`Noise` (and, with ``robot``, its length noise one a
+    sensor of its tendons can have: :func:`length_noise_error`), or a ValueError saying what
+    is expected."""
     if not isinstance(noise, Noise):
         raise ValueError(f"noise: a Noise(length=M, tension=FRACTION), not a "
                          f"{type(noise).__name__}")
+    if robot is not None and (error := length_noise_error(robot, "noise: length", noise.length)):
+        raise ValueError(error)
     return noise
 
 

@@ -71,7 +71,7 @@ class OnlineEstimator:
     def __init__(self, prob: Problem, noise: Noise = Noise(), time_limit: float = 0.02,
                  rescue_budget: int | None = None, dynamic: bool = False, walk: float = WALK,
                  inertia: bool = True):
-        self.problem, self.noise, self.time_limit = prob, check_noise(noise), time_limit
+        self.problem, self.noise, self.time_limit = prob, check_noise(noise, prob.robot), time_limit
         self.rescue_budget = rescue_budget
         self._filter = MotionFilter(prob, noise, walk, inertia) if dynamic else None
         model = prob.model

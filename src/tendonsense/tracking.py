@@ -77,7 +77,7 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
     A sample the compiled scan fails is solved on its own (a rescue); with ``persistent``
     False, only if the sample before it converged (a series that may have no solution over a
     stretch, e.g. a friction band's far end, is not solved row by row in vain)."""
-    check_noise(noise)
+    check_noise(noise, prob.robot)
     robot, model = prob.robot, prob.model
     n = len(displacements)
     if (prob.located or values) and history is not None:
@@ -208,7 +208,7 @@ def estimate_batch(prob: Problem, displacements: Sequence[Mapping[str, float]],
     warm-start each other, cut into ``workers`` runs, and the runs are solved concurrently
     (one thread each; the compiled tracker releases the GIL, so each takes a core).
     """
-    check_noise(noise)
+    check_noise(noise, prob.robot)
     from concurrent.futures import ThreadPoolExecutor
     robot = prob.robot
     n = len(displacements)
