@@ -618,3 +618,46 @@ def test_a_length_noise_in_millimetres_is_refused(prototype, tmp_path):
         identify(prototype, [Snapshot(dict(t1=2.0, t2=0.0, t3=0.0),
                                       displacements={"t1": -0.003})], length_noise=0.1)
     assert OnlineEstimator(prob, Noise(length=1e-3)).noise.length == 1e-3
+
+
+def test_time_stamps_in_milliseconds_are_caught(prototype, tmp_path):
+    """A log stamped in ms (rows 10 s apart as seconds) is refused for a motion (--dynamic,
+    a damping fit) on the command line and in Python; a tension schedule in ms is simulated
+    with a note that only its start falls within --duration."""
+    from tendonsense.identification import identify_damping
+    from tendonsense.logs import estimate_readings
+    from tendonsense.readings import read_readings
+    log = tmp_path / "ms.csv"
+    log.write_text("time,tension_t1,tension_t2,tension_t3,displacement_t1\n"
+                   + "".join(f"{10 * k},2,0,0,-0.003\n" for k in range(5)))
+    for args in (["estimate", PROTOTYPE, "--readings", log, "--unknown", "0.25,0,0,-1",
+                  "--dynamic", "-o", tmp_path / "e.csv"],
+                 ["identify", PROTOTYPE, "--readings", log, "-o", tmp_path / "f.toml"]):
+        p = cli(*args)
+        assert p.returncode == 1 and "rows 10 s apart" in p.stderr, p.stderr
+    measured, samples = read_readings(log, prototype)
+    with pytest.raises(ValueError, match="not seconds"):
+        identify_damping(prototype, samples)
+    with pytest.raises(ValueError, match="not seconds"):
+        estimate_readings(prototype, measured, samples, [PointForceUnknown(0.25, (0, 0, -1))],
+                          dynamic=True)
+    assert not (tmp_path / "e.csv").exists() and not (tmp_path / "f.toml").exists()
+    schedule = tmp_path / "ms_ramp.csv"
+    schedule.write_text("time,tension_t1\n0,1.9\n500,4.78\n1500,1.9\n")
+    p = cli("simulate", PROTOTYPE, "--tensions", schedule, "--duration", "0.05", "-o",
+            tmp_path / "sim.csv")
+    assert p.returncode == 0 and "its second row is at 500 s, after --duration" in p.stderr
+
+
+def test_a_column_twice_is_named_and_a_schedule_has_a_value_per_time(prototype, tmp_path):
+    from tendonsense.readings import read_parameter_sets, read_snapshots, read_tension_schedule
+    for read, header in ((read_tension_schedule, "time,tension_t1,tension_t1"),
+                         (read_parameter_sets, "tension_t1,tension_t1"),
+                         (read_snapshots, "tension_t1,tension_t2,tension_t3,tension_t1,"
+                                          "displacement_t1")):
+        path = tmp_path / "f.csv"
+        path.write_text(header + "\n" + ",".join(["1"] * len(header.split(","))) + "\n")
+        with pytest.raises(ValueError, match="column 'tension_t1' appears twice"):
+            read(path, prototype)
+    with pytest.raises(ValueError, match="tension t1: 2 times and 3 values"):
+        simulate(prototype, {"t1": ([0.0, 0.7], [1.9, 4.78, 1.9])}, duration=0.1)

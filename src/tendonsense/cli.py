@@ -625,7 +625,7 @@ def _not_an_input(args) -> None:
 
 
 def _check_identify(args, robot):
-    from .readings import has_time, read_readings, read_snapshots
+    from .readings import has_time, motion_step_error, read_readings, read_snapshots
     if (args.snapshots is None) == (args.readings is None):
         raise UsageError("tendonsense identify: give --snapshots SNAPSHOTS.csv (static poses) "
                          "or --readings LOG.csv (a motion, for --param damping)")
@@ -663,6 +663,8 @@ def _check_identify(args, robot):
         if not has_time(args.readings):
             raise ValueError(f"{args.readings}: no time column: the damping is fitted to a "
                              f"motion over time")
+        if error := motion_step_error(args.readings, args.log[1]):
+            raise ValueError(error)
     else:  # a modulus being fitted bounds no tension (the file's is a guess)
         fitted = args.param or inputs.DEFAULT_PARAMETERS
         args.snapshots_read = read_snapshots(
@@ -680,6 +682,11 @@ def _check_simulate(args, robot):
     both = [n for n in schedule if n in args.tension]
     if both:
         raise UsageError(f"tendonsense simulate: tendon {both[0]}: in --tensions and --tension")
+    nexts = [t[1] for t, _ in schedule.values() if t.size > 1]
+    if nexts and min(nexts) > args.duration:
+        print(f"tendonsense: note: {args.tensions}: its second row is at {min(nexts):g} s, after "
+              f"--duration {args.duration:g} s: only the start of its first ramp is simulated "
+              f"(times are in seconds)", file=sys.stderr)
     args.schedule = {**args.tension, **schedule}
     for flag, v in (("--noise-length", args.noise_length), ("--noise-tension", args.noise_tension)):
         if not (0 <= v < float("inf")):
@@ -744,12 +751,14 @@ def _check_estimate(args, robot, tensions, displacements):
         raise UsageError("tendonsense estimate: --json: the rows go to standard output as "
                          "CSV; give -o OUT.csv for the rows in a file and a JSON summary")
     if args.readings != "-":
-        from .readings import has_time, read_readings
+        from .readings import has_time, motion_step_error, read_readings
         args.log = read_readings(args.readings, robot)
         inputs.check_unknowns(robot, args.log[0], args.unknown)
         if args.dynamic and not has_time(args.readings):
             raise ReadingsError(f"{args.readings}: no time column: estimation in motion "
                                 f"(--dynamic) needs each row's time stamp, s")
+        if args.dynamic and (error := motion_step_error(args.readings, args.log[1])):
+            raise ReadingsError(error)
     if args.dynamic and robot.rod.damping <= 0:
         print(f"tendonsense: {args.robot} has no [rod] damping: --dynamic filters the "
               f"quasi-static model", file=sys.stderr)

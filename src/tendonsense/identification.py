@@ -28,7 +28,7 @@ from .forward import model_for, solve
 from .inputs import PARAMETERS, parameter_names  # noqa: F401 (API)
 from .kinematics import poses
 from .model import Structure
-from .readings import Snapshot, SnapshotError, read_snapshots  # noqa: F401 (API)
+from .readings import Snapshot, SnapshotError, motion_step_error, read_snapshots  # noqa: F401 (API)
 from .robot import Robot
 from .simulation import simulate
 from .statics import CACHE_SIZE, Drive, Unknowns, marker_positions, solve_system, terms
@@ -500,6 +500,8 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
     if not np.all(np.isfinite(t)):
         raise SnapshotError("damping needs a time stamp (s) in every row: the log has no time "
                             "column or an empty cell")
+    if error := motion_step_error("the log", rows):
+        raise SnapshotError(error)
     if np.any(np.diff(t) <= 0):
         k = int(np.argmax(np.diff(t) <= 0)) + 1
         raise SnapshotError(f"row {rows[k].row}: time {t[k]:g} s does not follow the row "

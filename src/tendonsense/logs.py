@@ -18,8 +18,8 @@ from .estimation import Noise, Unknown, problem
 from .inputs import WALK, check_unknowns
 from .online import OnlineEstimator
 from .readings import (SKIPPED_SHOWN, LogSummary, ReadingsError, Sample, has_time, located,
-                       output_header, output_row, output_rows, parse_header, parse_row,
-                       read_readings, with_sliding, write_csv_atomic)
+                       motion_step_error, output_header, output_row, output_rows, parse_header,
+                       parse_row, read_readings, with_sliding, write_csv_atomic)
 from .robot import Robot
 from .sliding import FrictionHistory, band_range
 from .tracking import SampleEstimate, series_chunks
@@ -38,6 +38,8 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
     model (:class:`~tendonsense.filtering.MotionFilter`)."""
     prob = problem(robot, measured, unknowns, point_forces)
     if dynamic:
+        if error := motion_step_error("the log", samples):
+            raise ValueError(error)
         online = OnlineEstimator(prob, noise, dynamic=True, walk=walk)
         for first in range(0, len(samples), CHUNK):
             yield first, [None if s.error else online.update(s.displacements, s.tensions, s.time,

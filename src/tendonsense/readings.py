@@ -47,6 +47,13 @@ class ReadingsError(ValueError):
     """A readings file that cannot be used at all (bad header, unreadable)."""
 
 
+def _once(source, header: Sequence[str], error: type[Exception]) -> None:
+    """No column of ``header`` twice (a dict of the row would keep one silently)."""
+    twice = [h for k, h in enumerate(header) if h in header[:k]]
+    if twice:
+        raise error(f"{source}: column {twice[0]!r} appears twice")
+
+
 def no_such(source, col: str, robot: Robot, kinds=("tension", "displacement", "sliding"),
             markers: bool = True) -> str | None:
     """The message for a column ``<kind>_<name>`` whose tendon (or, with ``markers``,
@@ -218,6 +225,24 @@ def _check_units(path, columns: Columns, robot: Robot, rows):
                 f"tendon by more than its whole length ({rest:.3g} m): lengths are in metres")
 
 
+#: rows of a log in motion are at most this far apart (median, s): farther, a rod settles
+#: between them (the damped prototype within 0.1 s), and time stamps so far apart are taken
+#: to be in another unit
+MAX_MOTION_STEP = 1.0
+
+
+def motion_step_error(source, samples: Sequence[Sample]) -> str | None:
+    """Why the time stamps of ``samples`` cannot be those of a motion, or None: their rows
+    are more than :data:`MAX_MOTION_STEP` apart (the median)."""
+    t = np.array([s.time for s in samples if s.time is not None and not s.error], float)
+    step = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    if step > MAX_MOTION_STEP:
+        return (f"{source}: rows {step:g} s apart (the median): a rod settles within a second, "
+                f"so the time stamps are not seconds (milliseconds?) or the log is not a motion "
+                f"(a static log is estimated without --dynamic)")
+    return None
+
+
 def has_time(path: str | Path) -> bool:
     """Whether a readings log's header has a ``time`` column."""
     with open(path, newline="") as fh:
@@ -273,6 +298,7 @@ def read_snapshots(path: str | Path, robot: Robot, young_modulus: float | None =
     path = Path(path)
     raw = read_csv_rows(path, SnapshotError)
     header = raw[0] if raw else []
+    _once(path, header, SnapshotError)
     rows = [dict(zip(header, r + [""] * (len(header) - len(r))))
             for r in raw[1:] if any(c.strip() for c in r)]
     if not rows:
@@ -544,8 +570,7 @@ def read_parameter_sets(path: str | Path, robot: Robot) -> ParameterSets:
                 f"{path}: column {col!r} is not tension_<tendon>, young_modulus, "
                 f"poisson_ratio, density, friction, friction_<tendon>, load_X/_fx/_fy/_fz or "
                 f"descriptive ({', '.join(DESCRIPTIVE)})")
-    if len(set(header)) < len(header):
-        raise ReadingsError(f"{path}: a column appears twice")
+    _once(path, header, ReadingsError)
     load = [c for c in LOAD_COLUMNS if c in header]
     if load and len(load) < 4:
         raise ReadingsError(f"{path}: a known load needs load_X, load_fx, load_fy and load_fz")
@@ -637,6 +662,7 @@ def read_tension_schedule(path: str | Path,
                             f"{', '.join(robot.tendon_names)})")
     if "time" not in header or not names:
         raise ReadingsError(f"{path}: needs a time column and at least one tension_<tendon>")
+    _once(path, header, ReadingsError)
     if len(rows) < 2:
         raise ReadingsError(f"{path}: no rows after the header")
     data = np.empty((len(rows) - 1, len(header)))

@@ -78,17 +78,24 @@ def _is_series(e) -> bool:
     return isinstance(e, tuple) and len(e) == 2 and np.ndim(e[0]) == 1
 
 
-def _table(entries: Sequence, width: int, what: str):
+def _table(entries: Sequence, width: int, labels: Sequence[str]):
     """Merge per-column schedules into one table: each entry a constant (shape ``width``) or
-    ``(times, values (k, width))``; linear between rows, held after the last."""
-    times = [np.asarray(e[0], float) for e in entries if _is_series(e)]
-    grid = np.unique(np.concatenate([[0.0], *times]))
-    out = []
-    for i, e in enumerate(entries):
+    ``(times, values (k, width))``; linear between rows, held after the last. ``labels``
+    name the entries in messages."""
+    out, series = [], []
+    for label, e in zip(labels, entries):
         if _is_series(e):
-            t, v = np.asarray(e[0], float), np.asarray(e[1], float).reshape(len(e[0]), width)
+            t, v = np.asarray(e[0], float), np.asarray(e[1], float)
             if t.ndim != 1 or t.size == 0 or np.any(np.diff(t) <= 0) or not np.all(np.isfinite(t)):
-                raise ValueError(f"{what} {i + 1}: the times must be finite and increasing")
+                raise ValueError(f"{label}: the times must be finite and increasing")
+            if v.size != t.size * width:
+                raise ValueError(f"{label}: {t.size} times and {v.size // width} values (one "
+                                 f"per time)")
+            series.append((t, v.reshape(t.size, width)))
+    grid = np.unique(np.concatenate([[0.0], *(t for t, _ in series)]))
+    for e in entries:
+        if _is_series(e):
+            t, v = series.pop(0)
             out.append(np.stack([np.interp(grid, t, v[:, j]) for j in range(width)], axis=1))
         else:
             out.append(np.broadcast_to(np.asarray(e, float).reshape(width), (grid.size, width)))
@@ -140,7 +147,7 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
             if error := inputs.tension_error(robot, name, float(v)):
                 raise ValueError(error)
         T_entries.append(e)
-    T_times, T = _table(T_entries, 1, "tension")
+    T_times, T = _table(T_entries, 1, [f"tension {n}" for n in names])
     directions = inputs.sliding(robot, sliding, inputs.SIMULATED_SLIDING, "follow")
     X, F_entries = [], []
     for i, (x, f) in enumerate(point_forces):
@@ -152,7 +159,7 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
         F_entries.append(f)
     if not X:  # one zero force at the base: one program with and without point forces
         X, F_entries = [0.0], [np.zeros(3)]
-    F_times, F = _table(F_entries, 3, "point force")
+    F_times, F = _table(F_entries, 3, [f"point force {i + 1}" for i in range(len(F_entries))])
     schedule = Schedule(T_times, T[:, :, 0], F_times, F, np.array(X, float),
                         np.asarray(robot.gravity, float),
                         np.array([STATES[d] for d in directions.values()]))
