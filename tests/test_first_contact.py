@@ -661,3 +661,20 @@ def test_a_column_twice_is_named_and_a_schedule_has_a_value_per_time(prototype, 
             read(path, prototype)
     with pytest.raises(ValueError, match="tension t1: 2 times and 3 values"):
         simulate(prototype, {"t1": ([0.0, 0.7], [1.9, 4.78, 1.9])}, duration=0.1)
+
+
+def test_a_sliding_column_in_another_vocabulary_and_one_log_as_a_path(prototype, tmp_path):
+    """A sliding column of other words ('pull') is refused as a whole (every row would be
+    skipped); a capitalised direction is read on the command line as in a log; estimate_logs
+    given one path (not a list) says what it expects."""
+    from tendonsense.distributed import estimate_logs
+    from tendonsense.readings import read_readings
+    log = tmp_path / "sl.csv"
+    log.write_text("time,tension_t1,tension_t2,tension_t3,displacement_t1,sliding_t1\n"
+                   + "".join(f"{0.01 * k},2,0,0,-0.003,pull\n" for k in range(5)))
+    with pytest.raises(ValueError, match="column sliding_t1: 5 of 5 rows are not in, out or"):
+        read_readings(log, prototype)
+    p = cli("solve", PROTOTYPE, "--tension", "t1=2", "--sliding", "t1=Out", "--json")
+    assert p.returncode == 0 and json.loads(p.stdout)["converged"]
+    with pytest.raises(ValueError, match="logs is a list of paths"):
+        estimate_logs(None, prototype, str(log), tmp_path, [PointForceUnknown(0.25, (0, 0, -1))])

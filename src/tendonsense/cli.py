@@ -95,6 +95,7 @@ def _assignment(text: str) -> tuple[str, float]:
 
 def _direction(text: str, allowed=inputs.SLIDING):
     name, sep, value = text.partition("=")
+    value = value.strip().lower()  # as a log's cell is read
     if not sep or not name:
         raise argparse.ArgumentTypeError(f"expected NAME={'|'.join(allowed)}, got {text!r}")
     if value not in allowed:
@@ -110,7 +111,8 @@ def _simulated_direction(text: str):
 def _forward_direction(text: str):
     """in or out (stuck is parsed, to be refused with its reason: a solve needs a profile)."""
     name, _, value = text.partition("=")
-    return (name, value) if name and value == "stuck" else _direction(text, ("in", "out"))
+    return (name, "stuck") if name and value.strip().lower() == "stuck" else _direction(
+        text, ("in", "out"))
 
 
 SLIDING_HELP = ("the direction tendon NAME slides through its guides, which sets the sense of "
@@ -292,7 +294,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --readings: write the estimates to this CSV file (atomically, "
                         "when every row is done); without it, or with '-', each result row goes "
                         "to standard output as soon as it is estimated; with several logs a "
-                        "folder OUTDIR/ (made if missing), one output per log under the log's name")
+                        "folder OUTDIR/ (made if missing, in a folder that exists), one output per log "
+                        "under the log's name")
     _cluster_options(p, "several logs (a log per task)", "the logs and OUTDIR")
     p.add_argument("--output", dest="estimates", help=argparse.SUPPRESS)
     p.add_argument("--length-noise", type=_positive, default=1e-4, metavar="M",

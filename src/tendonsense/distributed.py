@@ -307,6 +307,9 @@ def estimate_logs(client, robot: Robot, logs: Sequence[str | Path], out_dir: str
     logs write the same output and none overwrites a log. The log files must be readable,
     and ``out_dir`` writable, by the workers (a shared folder on a cluster of machines).
     """
+    if isinstance(logs, (str, Path)):
+        raise ValueError(f"estimate_logs: logs is a list of paths, such as [{str(logs)!r}] "
+                         f"(a pattern's matches: sorted(glob.glob(...))), not one path")
     if not logs:
         raise ValueError("estimate_logs: no logs")
     check_point_forces(robot, point_forces)

@@ -200,7 +200,8 @@ def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sampl
 
 def _check_units(path, columns: Columns, robot: Robot, rows):
     """A length column most of whose rows change the tendon by more than its whole length, or
-    a tension column most of whose rows would crush the rod, is in the wrong unit: the log is
+    a tension column most of whose rows would crush the rod, is in the wrong unit, and a
+    sliding column most of whose rows are no direction is in another vocabulary: the log is
     refused (its rows would each be skipped, or worse, the few that pass estimated)."""
     def values(col):
         k = columns.header.index(col)
@@ -215,6 +216,14 @@ def _check_units(path, columns: Columns, robot: Robot, rows):
         if len(over) >= 3 and len(over) > v.size / 2:
             raise ReadingsError(f"{path}: column tension_{name}: {len(over)} of {v.size} rows "
                                 f"break the rule for a tension, such as {over[0]}")
+    for col in (c for c in columns.header if c.startswith("sliding_")):
+        k = columns.header.index(col)
+        words = [r[k].strip().lower() for r in rows if len(r) == len(columns.header)]
+        bad = [w for w in words if w and w not in SLIDING]
+        if len(bad) >= 3 and len(bad) > len(words) / 2:
+            raise ReadingsError(f"{path}: column {col}: {len(bad)} of {len(words)} rows are "
+                                f"not {', '.join(SLIDING[:-1])} or {SLIDING[-1]} (such as "
+                                f"{bad[0]!r})")
     for name in columns.measured:
         rest = columns.rest[robot.tendon_names.index(name)]
         v = values(f"displacement_{name}")
