@@ -255,6 +255,10 @@ def test_cli_identify_damping(tmp_path):
     out = json.loads(r.stdout)
     assert out["damping"] == pytest.approx(damped.rod.damping, rel=1e-3)
     assert load_robot(tmp_path / "fitted.toml").rod.damping == pytest.approx(out["damping"])
+    assert out["initial_displacement_rmse"] is None  # no damping in the file: no motion to fit
+    r = run("--readings", log, "--point-force", "0.25,0,0,-0.3", "--no-inertia")
+    line = next(x for x in r.stdout.splitlines() if "tendon-length RMSE" in x)
+    assert line.strip().endswith("after the fit") and "—" not in r.stdout, r.stdout
     for args, words in ((("--readings", log, "--param", "density"), "damping alone"),
                         (("--snapshots", log, "--param", "damping"), "give --readings")):
         r = run(*args)

@@ -1494,12 +1494,12 @@ def _identify(args, robot) -> bool:
     if "damping" in fit.parameters:
         print(f"  relaxation time τ = 3η/E: "
               f"{3 * fit.parameters['damping'] / robot.rod.young_modulus * 1e3:.4g} ms")
-    if fit.marker_rmse is not None:
-        print(f"  marker RMSE: {_mm(fit.marker_rmse)} after the fit, "
-              f"{_mm(fit.initial_marker_rmse)} with the robot file's values")
-    if fit.displacement_rmse is not None:
-        print(f"  tendon-length RMSE: {_mm(fit.displacement_rmse)} after the fit, "
-              f"{_mm(fit.initial_displacement_rmse)} with the robot file's values")
+    for what, after, before in (("marker", fit.marker_rmse, fit.initial_marker_rmse),
+                                ("tendon-length", fit.displacement_rmse,
+                                 fit.initial_displacement_rmse)):
+        if after is not None:  # (no "before" where the file's values give no motion to fit)
+            print(f"  {what} RMSE: {_mm(after)} after the fit"
+                  + ("" if before is None else f", {_mm(before)} with the robot file's values"))
     if fit.misfit is not None:
         print(f"  residuals: {fit.misfit:.2g} times the noise assumed (RMS; about 1 when the model "
               f"explains the data)")
