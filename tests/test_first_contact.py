@@ -396,8 +396,8 @@ def test_the_analyses_run_from_any_folder(tmp_path):
 # ------------------------------------------------------ a result that is not a solution
 
 def short_of_iterations(folder):
-    """The prototype with a solver allowed 2 iterations per stage: 38 N at the tip (within the
-    rules) is then no solution."""
+    """The prototype with a solver cut short (2 iterations a stage): 38 N at the tip, within
+    the rules, is then not solved (the full solver solves it)."""
     robot = folder / "short.toml"
     robot.write_text(PROTOTYPE.read_text() + "\n[solver]\nmax_iterations = 2\n")
     return robot
@@ -562,10 +562,13 @@ def test_an_output_that_is_an_input_is_refused_and_the_input_kept(tmp_path):
             (["sweep", robot, sets, "-o", sets], "is the parameter sets"),
             (["simulate", robot, "--tensions", schedule, "--duration", "1", "-o", schedule],
              "is --tensions"),
-            (["solve", robot, "--tension", "t1=2", "--plot", robot], "is the robot file")):
+            (["solve", robot, "--tension", "t1=2", "--plot", robot], "is the robot file"),
+            (["identify", robot, "--snapshots", log, "-o", log], "is --snapshots")):
         p = subprocess.run([sys.executable, "-m", "tendonsense.cli", *map(str, args)],
                            capture_output=True, text=True, timeout=60)
         assert p.returncode == 1 and named in p.stderr and "overwrite" in p.stderr, p.stderr
+    rc, err, jax_loaded = refused_before_jax("sweep", robot, sets, "-o", sets)
+    assert rc == 1 and "overwrite" in err and not jax_loaded
     summary = estimate_file(load_robot(robot), log, log, [PointForceUnknown(0.25, (0, 0, -1))])
     assert "the log itself" in summary.error
     assert {p: p.read_bytes() for p in before} == before
@@ -678,3 +681,25 @@ def test_a_sliding_column_in_another_vocabulary_and_one_log_as_a_path(prototype,
     assert p.returncode == 0 and json.loads(p.stdout)["converged"]
     with pytest.raises(ValueError, match="logs is a list of paths"):
         estimate_logs(None, prototype, str(log), tmp_path, [PointForceUnknown(0.25, (0, 0, -1))])
+
+
+def test_a_sweeps_and_a_schedules_loads_are_bounded_with_their_own_modulus(prototype,
+                                                                          tmp_path):
+    """--point-force on a sweep is bounded by each set's E, before JAX (15 N at E/4 breaks the
+    rule: refused naming the set; 50 N at 2 E does not); every row of a simulated load's
+    schedule is bounded, not only its first; a simulation's length read-out noise too."""
+    sets = tmp_path / "sets.csv"
+    sets.write_text("tension_t1,young_modulus\n1,1e6\n1,0.25e6\n")
+    rc, err, jax_loaded = refused_before_jax("sweep", PROTOTYPE, sets, "-o",
+                                             tmp_path / "r.csv", "--point-force=0.25,0,0,-15")
+    assert rc == 1 and "set 2: --point-force 1 of 15 N" in err and not jax_loaded, err
+    sets.write_text("tension_t1,young_modulus\n1,2e6\n")
+    p = cli("sweep", PROTOTYPE, sets, "-o", tmp_path / "r.csv", "--point-force=0.25,0,0,-50")
+    assert p.returncode == 0, p.stderr
+    with pytest.raises(ValueError, match="point force 1 of 65 N"):
+        simulate(prototype, {"t1": 1.0}, [(0.25, ([0.0, 0.1], [[0, 0, 0], [0, 0, -65.0]]))],
+                 duration=0.02)
+    sim = simulate(prototype, {"t1": 1.0}, duration=0.02)
+    with pytest.raises(ValueError, match="lengths are in metres"):  # 0.1 mm typed as 0.1
+        sim.readings(noise_length=0.1)
+    assert "robot" not in repr(sim) and sim.readings(noise_length=1e-4)["time"].size == 3

@@ -317,4 +317,4 @@ def test_a_series_bounds_each_samples_tension_with_its_own_modulus(prototype):
         out = run(prob, [{"t1": -0.01}] * 2, [{"t1": 20.0}, {"t1": 45.0}],
                   values={"young_modulus": E})
         assert "would shorten the rod" in out[0].note and not out[0].converged
-        assert not out[1].note.startswith("bad value"), out[1].note
+        assert out[1].converged or not out[1].note.startswith("bad value"), out[1].note

@@ -294,8 +294,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --readings: write the estimates to this CSV file (atomically, "
                         "when every row is done); without it, or with '-', each result row goes "
                         "to standard output as soon as it is estimated; with several logs a "
-                        "folder OUTDIR/ (made if missing, in a folder that exists), one output per log "
-                        "under the log's name")
+                        "folder OUTDIR/ (made if missing, in a folder that exists), one output "
+                        "per log under the log's name")
     _cluster_options(p, "several logs (a log per task)", "the logs and OUTDIR")
     p.add_argument("--output", dest="estimates", help=argparse.SUPPRESS)
     p.add_argument("--length-noise", type=_positive, default=1e-4, metavar="M",
@@ -585,9 +585,17 @@ def _check(args, robot) -> None:
                                  "--scheduler (here every set is solved by one batch)")
             if args.task_size < 1:
                 raise UsageError(f"tendonsense sweep: --task-size {args.task_size}: at least 1")
-        inputs.check_point_forces(robot, _point_forces(args))
+        forces = _point_forces(args)
+        inputs.check_point_forces(robot, forces, math.inf)  # bounded below by each set's E
         _writable(args.results, "-o/--results")
-        args.sets_read = read_parameter_sets(args.sets, robot)
+        args.sets_read = sets = read_parameter_sets(args.sets, robot)
+        E = sets.values.get("young_modulus", np.full(len(sets.rows), robot.rod.young_modulus))
+        for i, (X, F) in enumerate(forces):
+            bad = np.linalg.norm(F) > inputs.max_force(robot, X, 1.0) * E
+            if bad.any():
+                k = int(np.argmax(bad))
+                raise ValueError(f"{args.sets}: set {k + 1}: " + inputs.force_error(
+                    robot, f"--point-force {i + 1}", X, F, E[k]))
     elif cmd == "identify":
         _check_identify(args, robot)
     if cmd in ("experiments", "compare"):
@@ -1446,9 +1454,9 @@ def _fitted_header(args, robot, fit, source: str) -> list[str]:
     for what, after, before in (("marker", fit.marker_rmse, fit.initial_marker_rmse),
                                 ("tendon-length", fit.displacement_rmse,
                                  fit.initial_displacement_rmse)):
-        if after is not None:
-            lines.append(f"{what} RMSE {_mm(after)} (with the robot file's values "
-                         f"{_mm(before)})")
+        if after is not None:  # (no "before" where the file's values give no motion to fit)
+            lines.append(f"{what} RMSE {_mm(after)}" + (
+                "" if before is None else f" (with the robot file's values {_mm(before)})"))
     if fit.warning:
         lines.append(f"WARNING: {fit.warning}")
     return lines

@@ -301,7 +301,18 @@ def _sq(r):
     return float(r @ r)
 
 
+def _check_noises(robot: Robot, marker_noise: float, length_noise: float) -> None:
+    """The read-out noises a fit weighs its residuals by: positive metres, and a length noise
+    a sensor of the robot's tendons can have (:func:`~tendonsense.inputs.length_noise_error`)."""
+    for noise, what in ((marker_noise, "marker noise"), (length_noise, "length noise")):
+        if not (np.isfinite(noise) and noise > 0):
+            raise ValueError(f"{what} must be a positive number of metres, got {noise}")
+    if error := inputs.length_noise_error(robot, "length noise", length_noise):
+        raise ValueError(error)
+
+
 def _setup(robot: Robot, snapshots: Sequence[Snapshot], params, marker_noise, length_noise):
+    _check_noises(robot, marker_noise, length_noise)
     model = model_for(robot)
     base = model.values
     gravity = jnp.asarray(robot.gravity, float)
@@ -320,11 +331,6 @@ def _setup(robot: Robot, snapshots: Sequence[Snapshot], params, marker_noise, le
              "friction": max(float(mu.mean()) if mu.size else 0.0, 0.05),
              **{f"friction_{n}": max(float(mu[j]), 0.05)
                 for j, n in enumerate(robot.tendon_names)}}
-    for noise, what in ((marker_noise, "marker noise"), (length_noise, "length noise")):
-        if not (np.isfinite(noise) and noise > 0):
-            raise ValueError(f"{what} must be a positive number of metres, got {noise}")
-    if error := inputs.length_noise_error(robot, "length noise", length_noise):
-        raise ValueError(error)
     signs = [inputs.friction_signs(robot, s.sliding) for s in snapshots]
     return _Setup(model, tuple(params), drives, markers, lengths, signs,
                   (1.0 / marker_noise, 1.0 / length_noise),
@@ -506,11 +512,7 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
         k = int(np.argmax(np.diff(t) <= 0)) + 1
         raise SnapshotError(f"row {rows[k].row}: time {t[k]:g} s does not follow the row "
                             f"before ({t[k - 1]:g} s): the rows must be in time order")
-    for noise, what in ((marker_noise, "marker noise"), (length_noise, "length noise")):
-        if not (np.isfinite(noise) and noise > 0):
-            raise ValueError(f"{what} must be a positive number of metres, got {noise}")
-    if error := inputs.length_noise_error(robot, "length noise", length_noise):
-        raise ValueError(error)
+    _check_noises(robot, marker_noise, length_noise)
     names = robot.tendon_names
     measured = [n for n in names if n in rows[0].displacements]
     markers = [m for m in robot.marker_names if m in rows[0].markers]

@@ -100,18 +100,25 @@ def tension_error(robot: Robot, name: str, T: float, young_modulus: float | None
     return None
 
 
+def max_force(robot: Robot, X: float, young_modulus=None):
+    """The largest known point force (N) at ``X`` (m): as for a tension
+    (:func:`max_tension`), half the axial stiffness E·A of the thinnest section between the
+    base and X."""
+    E = robot.rod.young_modulus if young_modulus is None else young_modulus
+    return MAX_COMPRESSION * E * thinnest_area(robot, X)
+
+
 def force_error(robot: Robot, what: str, X: float, force, young_modulus=None) -> str | None:
-    """Why a known point force ``force`` (N, 3) at ``X`` (m) cannot be one, or None: as for a
-    tension, at most half the axial stiffness E·A of the thinnest section between the base
-    and X (a unit slip: gram-force typed as newtons). ``young_modulus`` as for
+    """Why a known point force ``force`` (N, 3) at ``X`` (m) cannot be one, or None: over
+    :func:`max_force` (a unit slip: gram-force typed as newtons). ``young_modulus`` as for
     :func:`tension_error`."""
     F = float(np.linalg.norm(force))
-    E = robot.rod.young_modulus if young_modulus is None else young_modulus
-    EA = E * thinnest_area(robot, X)
-    if F > MAX_COMPRESSION * EA:
-        return (f"{what} of {F:g} N would stretch or shorten the rod by more than half where "
-                f"it is thinnest (F = {F / EA:.2g} E·A, E·A = {EA:.3g} N there): forces are "
-                f"in newtons")
+    top = max_force(robot, X, young_modulus)
+    if F > top:
+        EA = top / MAX_COMPRESSION
+        return (f"{what} of {F:g} N is more than half the axial stiffness E·A of the rod "
+                f"where it is thinnest (F = {F / EA:.2g} E·A, E·A = {EA:.3g} N there): forces "
+                f"are in newtons")
     return None
 
 

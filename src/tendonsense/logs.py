@@ -144,6 +144,8 @@ def estimate_file(robot: Robot, log: str | Path, out: str | Path, unknowns: Sequ
         if dynamic and not has_time(log):
             raise ReadingsError(f"{log}: no time column: estimation in motion (dynamic) "
                                 f"needs each row's time stamp, s")
+        if dynamic and (error := motion_step_error(log, samples)):
+            raise ReadingsError(error)
         results = estimate_readings(robot, measured, samples, unknowns, point_forces, noise,
                                     dynamic=dynamic, walk=walk)
         write_csv_atomic(out, *output_rows(robot, samples, results, len(unknowns),

@@ -107,11 +107,9 @@ def parse_header(header: Sequence[str], robot: Robot, source) -> Columns:
     ``displacement_<name>``, optional ``marker_<name>_x/_y/_z``."""
     header = [h.strip() for h in header]
     tendons, markers = robot.tendon_names, robot.marker_names
-    measured, seen = [], set()
+    _once(source, header, ReadingsError)
+    measured = []
     for col in header:
-        if col in seen:
-            raise ReadingsError(f"{source}: column {col!r} appears twice")
-        seen.add(col)
         kind, _, name = col.partition("_")
         if col == "time":
             continue
@@ -664,11 +662,10 @@ def read_tension_schedule(path: str | Path,
                             f"tension_<tendon> columns)")
     header = [h.strip() for h in rows[0]]
     names = [h.removeprefix("tension_") for h in header if h.startswith("tension_")]
-    bad = [h for h in header if h != "time" and h.removeprefix("tension_") not in
-           robot.tendon_names]
-    if bad:
-        raise ReadingsError(f"{path}: column {bad[0]!r}: not time or tension_<tendon> (tendons: "
-                            f"{', '.join(robot.tendon_names)})")
+    for col in header:
+        if col != "time" and not (col.startswith("tension_") and col[8:] in robot.tendon_names):
+            raise ReadingsError(no_such(path, col, robot, ("tension",), False)
+                                or f"{path}: column {col!r}: not time or tension_<tendon>")
     if "time" not in header or not names:
         raise ReadingsError(f"{path}: needs a time column and at least one tension_<tendon>")
     _once(path, header, ReadingsError)

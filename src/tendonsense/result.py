@@ -30,7 +30,8 @@ def _short(v) -> str:
 def compact_repr(self) -> str:
     """A result's fields in a notebook's echo: long arrays by their shape."""
     return (f"{type(self).__name__}(" + ", ".join(
-        f"{f.name}={_short(getattr(self, f.name))}" for f in dataclasses.fields(self)) + ")")
+        f"{f.name}={_short(getattr(self, f.name))}" for f in dataclasses.fields(self) if f.repr)
+        + ")")
 
 
 @dataclass(frozen=True, eq=False)

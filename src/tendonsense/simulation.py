@@ -5,7 +5,7 @@ when asked, so that an experiment can be rehearsed before it is run (:func:`simu
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -43,6 +43,7 @@ class Simulation:
     markers: dict[str, np.ndarray]
     converged: np.ndarray
     friction_state: dict[str, np.ndarray]
+    robot: Robot | None = field(default=None, repr=False)  # the robot simulated
 
     __repr__ = compact_repr
 
@@ -58,6 +59,9 @@ class Simulation:
         sensor of a slack tendon)."""
         if inputs.finite("noise_length", noise_length) < 0:
             raise ValueError(f"noise_length: must be >= 0 m, got {noise_length:g}")
+        if self.robot is not None and (
+                error := inputs.length_noise_error(self.robot, "noise_length", noise_length)):
+            raise ValueError(error)
         if not 0 <= inputs.finite("noise_tension", noise_tension) < 1:
             raise ValueError(f"noise_tension: {inputs.FRACTION}, got {noise_tension:g}")
         rng = np.random.default_rng(seed)
@@ -151,10 +155,11 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     directions = inputs.sliding(robot, sliding, inputs.SIMULATED_SLIDING, "follow")
     X, F_entries = [], []
     for i, (x, f) in enumerate(point_forces):
-        fixed = np.asarray(f[1], float)[0] if _is_series(f) else f
-        inputs.check_point_forces(robot, [(x, fixed)])
-        if _is_series(f) and not np.all(np.isfinite(np.asarray(f[1], float))):
+        rows = np.asarray(f[1], float).reshape(-1, 3) if _is_series(f) else [f]
+        if not len(rows) or not np.all(np.isfinite(rows)):
             raise ValueError(f"point force {i + 1}: the forces must be finite")
+        for row in rows:  # every row of a schedule by the rule
+            inputs.check_point_forces(robot, [(x, row)])
         X.append(float(x))
         F_entries.append(f)
     if not X:  # one zero force at the base: one program with and without point forces
@@ -193,5 +198,5 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
         t_all, qs, vs, {n: np.interp(t_all, T_times, T[:, j, 0]) for j, n in enumerate(names)},
         {n: ys[:, j] for j, n in enumerate(names)},
         {m: mk[:, i] for i, m in enumerate(robot.marker_names)}, ok & fine,
-        {n: np.nan_to_num(states[:, j], nan=1.0) for j, n in enumerate(names)})
+        {n: np.nan_to_num(states[:, j], nan=1.0) for j, n in enumerate(names)}, robot)
 
