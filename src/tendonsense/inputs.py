@@ -91,13 +91,16 @@ def tension_error(robot: Robot, name: str, T: float, young_modulus: float | None
         return f"tension {name} = {T}: not a finite number"
     if T < 0:
         return f"tension {name} = {T:g} N is negative (a tendon cannot push; slack is 0)"
-    top = max_tension(robot, name, young_modulus)
-    if T > top:
-        EA = top / MAX_COMPRESSION
+    if T > (top := max_tension(robot, name, young_modulus)):
         return (f"tension {name} = {T:g} N would shorten the rod by more than half where it is "
-                f"thinnest (T = {T / EA:.2g} E·A, E·A = {EA:.3g} N there): tensions are in "
-                f"newtons")
+                f"thinnest {_in_stiffness('T', T, top)}: tensions are in newtons")
     return None
+
+
+def _in_stiffness(symbol: str, value: float, top: float) -> str:
+    """A force beyond the rule's ``top`` against the stiffness E·A it is half of."""
+    EA = top / MAX_COMPRESSION
+    return f"({symbol} = {value / EA:.2g} E·A, E·A = {EA:.3g} N there)"
 
 
 def max_force(robot: Robot, X: float, young_modulus=None):
@@ -113,12 +116,9 @@ def force_error(robot: Robot, what: str, X: float, force, young_modulus=None) ->
     :func:`max_force` (a unit slip: gram-force typed as newtons). ``young_modulus`` as for
     :func:`tension_error`."""
     F = float(np.linalg.norm(force))
-    top = max_force(robot, X, young_modulus)
-    if F > top:
-        EA = top / MAX_COMPRESSION
+    if F > (top := max_force(robot, X, young_modulus)):
         return (f"{what} of {F:g} N is more than half the axial stiffness E·A of the rod "
-                f"where it is thinnest (F = {F / EA:.2g} E·A, E·A = {EA:.3g} N there): forces "
-                f"are in newtons")
+                f"where it is thinnest {_in_stiffness('F', F, top)}: forces are in newtons")
     return None
 
 
