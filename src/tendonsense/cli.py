@@ -591,11 +591,8 @@ def _check(args, robot) -> None:
         args.sets_read = sets = read_parameter_sets(args.sets, robot)
         E = sets.values.get("young_modulus", np.full(len(sets.rows), robot.rod.young_modulus))
         for i, (X, F) in enumerate(forces):
-            bad = np.linalg.norm(F) > inputs.max_force(robot, X, 1.0) * E
-            if bad.any():
-                k = int(np.argmax(bad))
-                raise ValueError(f"{args.sets}: set {k + 1}: " + inputs.force_error(
-                    robot, f"--point-force {i + 1}", X, F, E[k]))
+            if bad := inputs.first_force_error(robot, f"--point-force {i + 1}", X, F, E):
+                raise ValueError(f"{args.sets}: set {bad[0] + 1}: {bad[1]}")
     elif cmd == "identify":
         _check_identify(args, robot)
     if cmd in ("experiments", "compare"):

@@ -122,6 +122,20 @@ def force_error(robot: Robot, what: str, X: float, force, young_modulus=None) ->
     return None
 
 
+def first_force_error(robot: Robot, what: str, X, forces, young_modulus
+                      ) -> tuple[int, str] | None:
+    """The first of n samples of one known point force, at ``X`` (n,) m with ``forces`` (n, 3)
+    N and ``young_modulus`` (n,), that breaks :func:`force_error`'s rule, and why; or None."""
+    X, E = np.broadcast_to(X, np.shape(young_modulus)), np.asarray(young_modulus, float)
+    Xs, at = np.unique(X, return_inverse=True)
+    top = np.array([max_force(robot, x, 1.0) for x in Xs])[at.reshape(-1)] * E
+    bad = np.linalg.norm(np.broadcast_to(forces, (E.size, 3)), axis=1) > top
+    if not bad.any():
+        return None
+    k = int(np.argmax(bad))
+    return k, force_error(robot, what, X[k], np.broadcast_to(forces, (E.size, 3))[k], E[k])
+
+
 def displacement_error(name: str, y: float, rest: float) -> str | None:
     """Why length change ``y`` (m) of a tendon ``rest`` m long cannot be a reading, or None."""
     if not math.isfinite(y):

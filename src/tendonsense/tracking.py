@@ -16,7 +16,7 @@ from .estimation import estimate_problem
 from .fastpath import (MAX_EVALUATIONS, MAX_JACOBIANS, Carry, Track,  # noqa: F401 (API)
                        follower, stacked_drives, stepper, tracker, unpack_row)
 from .forward import model_for, why_not
-from .inputs import (Noise, check_noise, force_error, max_force, max_tension, tendon_vector,
+from .inputs import (Noise, check_noise, first_force_error, max_tension, tendon_vector,
                      tension_error)
 from .model import VALUE_NAMES
 from .online import RESCUE_BUDGET, OnlineEstimator
@@ -357,13 +357,8 @@ def batch_inputs(robot: Robot, base, tensions, point_forces, values):
     if np.any((X < 0) | (X > robot.rod.length)):
         raise ValueError(f"batch: a point force X is outside the rod [0, {robot.rod.length:g}]")
     for j in range(X.shape[1]):  # each sample's loads by the rule, with its own E
-        Xs, at = np.unique(X[:, j], return_inverse=True)
-        top = np.array([max_force(robot, x, 1.0) for x in Xs])[at.reshape(-1)] * E
-        bad = np.linalg.norm(F[:, j], axis=1) > top
-        if bad.any():
-            k = int(np.argmax(bad))
-            why = force_error(robot, f"point force {j + 1}", X[k, j], F[k, j], E[k])
-            raise ValueError(f"batch: sample {k + 1}: {why}")
+        if bad := first_force_error(robot, f"point force {j + 1}", X[:, j], F[:, j], E):
+            raise ValueError(f"batch: sample {bad[0] + 1}: {bad[1]}")
     return T, X, F, varied
 
 
