@@ -216,6 +216,45 @@ def readings(robot: Robot, displacements_: Mapping[str, float],
     return tensions(robot, tensions_, young_modulus), y
 
 
+def many_readings(robot: Robot, displacements: Sequence[Mapping[str, float]],
+                  tensions: Sequence[Mapping[str, float]], measured: Collection[str] = (),
+                  rest: np.ndarray | None = None, young_modulus=None
+                  ) -> tuple[np.ndarray, np.ndarray, dict[int, str]]:
+    """:func:`readings` of n readings at once: ``(T, y)`` (n, n_t) and the reason every bad one
+    breaks a rule, by index (its row of T and y zeros). The tendons ``measured`` need a length
+    change in every reading; ``young_modulus`` is one value or one per reading (None: the
+    robot file's). The rules are checked on the arrays; a reading they catch is checked again
+    by :func:`readings` alone, for its message."""
+    n, names = len(tensions), robot.tendon_names
+    rest = rest_lengths(robot) if rest is None else rest
+    E = np.array([robot.rod.young_modulus if e is None else e for e in np.broadcast_to(
+        np.asarray(young_modulus, object), (n,))], float)
+    try:
+        T = np.array([[t.get(name, 0.0) for name in names] for t in tensions],
+                     float).reshape(n, len(names))
+        y = np.array([[d.get(name, 0.0) for name in names] for d in displacements],
+                     float).reshape(n, len(names))
+        keys_ok = np.array([set(d) <= set(names) and set(t) <= set(names)
+                            and all(name in d for name in measured) and all(name in t for name in d)
+                            for d, t in zip(displacements, tensions)], bool).reshape(n)
+    except (AttributeError, TypeError, ValueError):  # not mappings of numbers: one by one
+        T, y, keys_ok = np.zeros((n, len(names))), np.zeros((n, len(names))), np.zeros(n, bool)
+    top = np.array([max_tension(robot, name, 1.0) for name in names]) * E[:, None]
+    with np.errstate(invalid="ignore"):
+        ok = keys_ok & np.all(np.isfinite(T) & (T >= 0) & (T <= top), axis=1) & np.all(
+            np.isfinite(y) & (np.abs(y) < rest), axis=1)
+    errors = {}
+    for k in np.flatnonzero(~ok).tolist():
+        try:
+            missing = [name for name in measured if name not in displacements[k]]
+            if missing:
+                raise ValueError(f"displacement {missing[0]}: missing: the tendon is measured")
+            T[k], y[k] = readings(robot, displacements[k], tensions[k], rest, E[k])
+        except ValueError as exc:
+            T[k], y[k], errors[k] = 0.0, 0.0, str(exc)
+    return T, y, errors
+
+
 #: the directions a tendon may slide through its guides
 SLIDING = ("in", "out", "stuck")
 #: a friction state this close to ±1 is sliding (in or out), not stuck

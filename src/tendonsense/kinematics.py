@@ -124,7 +124,7 @@ def configuration(values: Values, q, *points: PointSet):
 def wrench(g, f, offsets=None):
     """Body wrenches ``[d × Rᵀf; Rᵀf]`` (..., 6) of global forces f (..., 3) acting at
     ``g [d; 1]`` (d in the cross-section frame; at the origin without ``offsets``)."""
-    local = jnp.einsum("...ji,...j->...i", g[..., :3, :3], f)
+    local = lie.rotate_T(g[..., :3, :3], f)
     moment = jnp.zeros_like(local) if offsets is None else jnp.cross(offsets, local)
     return jnp.concatenate([moment, local], axis=-1)
 
@@ -209,4 +209,4 @@ def positions(g, offsets=None) -> jax.Array:
     p = g[:, :3, 3]
     if offsets is None:
         return p
-    return p + jnp.einsum("nij,nj->ni", g[:, :3, :3], offsets)
+    return p + lie.rotate(g[:, :3, :3], offsets)

@@ -171,11 +171,23 @@ _dexp_apply = pointwise(lambda Omega, v: _horner(Omega, v, False), linear=(1,))
 _dexp_T_apply = pointwise(lambda Omega, v: _horner(Omega, v, True), linear=(1,))
 
 
+def rotate(R, x):
+    """``R x`` for rotations R (..., 3, 3) and vectors x (..., 3), batched. Written as products
+    and a sum, not ``einsum``: XLA's classic CPU emitter (:func:`tendonsense.settings.
+    compiler_options`) makes a batch of 3×3 products one small matrix product each, a loop
+    fusion does them all at once (the residual of the paper's prototype 21 → 11 µs)."""
+    return jnp.sum(R * x[..., None, :], axis=-1)
+
+
+def rotate_T(R, x):
+    """``Rᵀ x``, batched (as :func:`rotate`)."""
+    return jnp.sum(R * x[..., :, None], axis=-2)
+
+
 def Ad_apply(g, eta):
     """``Ad_g η`` for poses g (..., 4, 4): ``[R w; r × R w + R v]``."""
     R, r = g[..., :3, :3], g[..., :3, 3]
-    Rw, Rv = jnp.einsum("...ij,...j->...i", R, eta[..., :3]), jnp.einsum(
-        "...ij,...j->...i", R, eta[..., 3:])
+    Rw, Rv = rotate(R, eta[..., :3]), rotate(R, eta[..., 3:])
     return jnp.concatenate([Rw, jnp.cross(r, Rw) + Rv], -1)
 
 
@@ -183,8 +195,7 @@ def coAd_apply(g, w):
     """``Ad_{g⁻¹}ᵀ w``: a wrench w = [m; f] in the frame g, in the frame g is given in:
     ``[R m + r × R f; R f]``."""
     R, r = g[..., :3, :3], g[..., :3, 3]
-    Rm, Rf = jnp.einsum("...ij,...j->...i", R, w[..., :3]), jnp.einsum(
-        "...ij,...j->...i", R, w[..., 3:])
+    Rm, Rf = rotate(R, w[..., :3]), rotate(R, w[..., 3:])
     return jnp.concatenate([Rm + jnp.cross(r, Rf), Rf], -1)
 
 
@@ -192,8 +203,7 @@ def Ad_T_apply(g, w):
     """``Ad_gᵀ w``, the inverse of :func:`coAd_apply`: ``[Rᵀ(m − r × f); Rᵀ f]``."""
     R, r = g[..., :3, :3], g[..., :3, 3]
     m, f = w[..., :3], w[..., 3:]
-    return jnp.concatenate([jnp.einsum("...ji,...j->...i", R, m - jnp.cross(r, f)),
-                            jnp.einsum("...ji,...j->...i", R, f)], -1)
+    return jnp.concatenate([rotate_T(R, m - jnp.cross(r, f)), rotate_T(R, f)], -1)
 
 
 def hat_times(sigma, g):

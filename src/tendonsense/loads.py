@@ -8,6 +8,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from .kinematics import wrench
+from .lie import rotate_T
 
 
 def gravity(values, g, nu, acceleration):
@@ -17,7 +18,7 @@ def gravity(values, g, nu, acceleration):
     tangents ``p' = R ν`` (``values.gravity_weights``: ``Σ w · [p_i, R_i ν_i, p_{i+1},
     R_{i+1} ν'_i]``)."""
     w = values.density * values.gravity_weights  # (n_int, 4)
-    local = jnp.einsum("nji,j->ni", g[:, :3, :3], acceleration)  # Rᵀ a at every node
+    local = rotate_T(g[:, :3, :3], acceleration)  # Rᵀ a at every node
     zero = jnp.zeros((1,), w.dtype)
     force = jnp.concatenate([w[:, 0], zero]) + jnp.concatenate([zero, w[:, 2]])
     arm = (jnp.concatenate([w[:, 1:2] * nu[:, 0], jnp.zeros((1, 3))])

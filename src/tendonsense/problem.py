@@ -76,12 +76,20 @@ class Problem:
         """``(T, y)`` per tendon of one reading, by the rules of :mod:`tendonsense.inputs`
         (``young_modulus``: the sample's own, where it is not the robot file's); every
         measured tendon needs its length change and its tension."""
+        T, y, errors = self.many_readings([displacements], [tensions], [young_modulus])
+        if errors:
+            raise ValueError(errors[0])
+        return T[0], y[0]
+
+    def many_readings(self, displacements: Sequence[Mapping[str, float]],
+                      tensions: Sequence[Mapping[str, float]], young_modulus=None
+                      ) -> tuple[np.ndarray, np.ndarray, dict[int, str]]:
+        """:meth:`readings` of n readings at once (:func:`tendonsense.inputs.many_readings`):
+        ``(T, y)`` (n, n_t) and the reason every bad one breaks a rule, by index."""
         names = self.robot.tendon_names
-        for j in self.measured:
-            if names[j] not in displacements:
-                raise ValueError(f"displacement {names[j]}: missing: the tendon is measured")
-        return inputs.readings(self.robot, displacements, tensions, self.rest_lengths,
-                               young_modulus)
+        return inputs.many_readings(self.robot, displacements, tensions,
+                                    [names[j] for j in self.measured], self.rest_lengths,
+                                    young_modulus)
 
     def drive(self, tensions, targets) -> Drive:
         return Drive(np.asarray(tensions, float), self.known_forces, self.load_X, self.gravity,

@@ -16,7 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from .inputs import (SLIDING, Unknown, displacement_error, force_error, marker_error,
-                     rest_lengths, tension_error)
+                     max_tension, rest_lengths, tension_error)
 from .result import SampleEstimate
 from .robot import Robot, value_error
 
@@ -100,6 +100,7 @@ class Columns:
     measured: list[str]
     markers: list[str]
     rest: np.ndarray = field(default_factory=lambda: np.zeros(0))  # tendons' lengths, m
+    top: np.ndarray = field(default_factory=lambda: np.zeros(0))  # tendons' largest tensions, N
 
 
 def parse_header(header: Sequence[str], robot: Robot, source) -> Columns:
@@ -137,7 +138,8 @@ def parse_header(header: Sequence[str], robot: Robot, source) -> Columns:
         for a in AXES:
             if f"marker_{m}_{a}" not in header:
                 raise ReadingsError(f"{source}: marker {m!r} needs columns _x, _y and _z")
-    return Columns(header, measured, marker_names, rest_lengths(robot))
+    return Columns(header, measured, marker_names, rest_lengths(robot),
+                   np.array([max_tension(robot, name) for name in tendons]))
 
 
 def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sample:
@@ -162,9 +164,11 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
                 error = _not_finite(col, text)
                 break
             kind, _, name = col.partition("_")
-            error = (tension_error(robot, name, v) if kind == "tension" else displacement_error(
-                name, v, columns.rest[robot.tendon_names.index(name)])
-                if kind == "displacement" else None)
+            if kind == "tension" and not 0 <= v <= columns.top[robot.tendon_names.index(name)]:
+                error = tension_error(robot, name, v)
+            elif kind == "displacement" and not abs(v) < columns.rest[
+                    robot.tendon_names.index(name)]:
+                error = displacement_error(name, v, columns.rest[robot.tendon_names.index(name)])
             if error:
                 break
             values[col] = v
@@ -210,10 +214,11 @@ def _check_units(path, columns: Columns, robot: Robot, rows):
         if f"tension_{name}" not in columns.header:
             continue
         v = values(f"tension_{name}")
-        over = [e for T in v if T >= 0 and (e := tension_error(robot, name, T)) is not None]
-        if len(over) >= 3 and len(over) > v.size / 2:
-            raise ReadingsError(f"{path}: column tension_{name}: {len(over)} of {v.size} rows "
-                                f"break the rule for a tension, such as {over[0]}")
+        over = v[(v >= 0) & (v > columns.top[robot.tendon_names.index(name)])]
+        if over.size >= 3 and over.size > v.size / 2:
+            raise ReadingsError(f"{path}: column tension_{name}: {over.size} of {v.size} rows "
+                                f"break the rule for a tension, such as "
+                                f"{tension_error(robot, name, float(over[0]))}")
     for col in (c for c in columns.header if c.startswith("sliding_")):
         k = columns.header.index(col)
         words = [r[k].strip().lower() for r in rows if len(r) == len(columns.header)]
@@ -225,7 +230,7 @@ def _check_units(path, columns: Columns, robot: Robot, rows):
     for name in columns.measured:
         rest = columns.rest[robot.tendon_names.index(name)]
         v = values(f"displacement_{name}")
-        over = sum(displacement_error(name, y, rest) is not None for y in v)
+        over = int(np.count_nonzero(np.abs(v) >= rest))
         if over >= 3 and over > v.size / 2:
             raise ReadingsError(
                 f"{path}: column displacement_{name}: {over} of {v.size} rows change the "

@@ -12,7 +12,7 @@ import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
 from .kinematics import configuration, wrench
-from .lie import safe_norm
+from .lie import rotate, safe_norm
 from .model import Structure, TendonGroup, Values
 
 
@@ -20,7 +20,7 @@ def path(group: TendonGroup, g):
     """Poses at the disks (k, nd, 4, 4) and the global tendon points ``r_i = g_i [d_i; 1]``,
     from the grid poses ``g``."""
     at = g[group.nodes]
-    r = at[..., :3, 3] + jnp.einsum("knij,knj->kni", at[..., :3, :3], group.offsets)
+    r = at[..., :3, 3] + rotate(at[..., :3, :3], group.offsets)
     return at, r
 
 

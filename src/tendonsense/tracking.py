@@ -97,14 +97,11 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                 raise ValueError(f"{what} {name}: no such tendon (robot has "
                                  f"{', '.join(robot.tendon_names)})")
     varied = varied_values(model.values, values, n)
-    T, Y = np.zeros((n, len(robot.tendons))), np.zeros((n, len(robot.tendons)))
     out: list[SampleEstimate | None] = [None] * n
-    E = varied.get("young_modulus", np.full(n, None))
-    for k in range(n):
-        try:  # each sample's tension bound with its own E
-            T[k], Y[k] = prob.readings(displacements[k], tensions[k], E[k])
-        except ValueError as exc:
-            out[k] = SampleEstimate.failed(prob, f"bad value: {exc}")
+    # each sample's tension bound with its own E
+    T, Y, errors = prob.many_readings(displacements, tensions, varied.get("young_modulus"))
+    for k, error in errors.items():
+        out[k] = SampleEstimate.failed(prob, f"bad value: {error}")
     tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.any(T != 0, axis=0)))))
     if history is None:
         track = tracker(model.structure, prob.measured, prob.n_z, tcols, until_failure=True)
