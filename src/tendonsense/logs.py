@@ -8,6 +8,8 @@ from __future__ import annotations
 import csv
 import itertools
 import os
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
@@ -55,20 +57,37 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
     said = [[samples[k].sliding.get(t, "") for t in names] for k in good]
     given = np.array([[GIVEN[d] for d in row] for row in said]).reshape(len(good), len(names))
     stuck = np.array([[d == "stuck" for d in row] for row in said]).reshape(given.shape)
-    for first, estimates in series_chunks(
-            prob, [samples[k].displacements for k in good],
-            [samples[k].tensions for k in good], noise, CHUNK,
-            history=history if follow else None, given=given if follow else None,
-            stuck=stuck if follow else None):
-        if follow:
-            estimates = _stuck_ranges(prob, [samples[k] for k in good[first:first + len(
-                estimates)]], estimates, noise)
+    chunks = series_chunks(prob, [samples[k].displacements for k in good],
+                           [samples[k].tensions for k in good], noise, CHUNK,
+                           history=history if follow else None,
+                           given=given if follow else None, stuck=stuck if follow else None)
+
+    def place(first, estimates):  # -> the samples done with it (bad ones between included)
+        nonlocal done
         for k, e in zip(good[first:first + len(estimates)], estimates):
             out[k] = e
         end = (good[first + len(estimates)] if first + len(estimates) < len(good)
                else len(samples))
-        yield done, out[done:end]
-        done = end
+        start, done = done, end
+        return start, out[start:end]
+
+    if not follow:
+        for first, estimates in chunks:
+            yield place(first, estimates)
+    else:
+        # a chunk's stuck rows' range on a second thread, while the scan goes on with the next
+        # chunk (the compiled programs release the GIL: each takes a core)
+        with ThreadPoolExecutor(1) as pool:
+            pending: deque = deque()
+            for first, estimates in chunks:
+                rows = [samples[k] for k in good[first:first + len(estimates)]]
+                pending.append((first, pool.submit(_stuck_ranges, prob, rows, estimates, noise)))
+                if len(pending) > 1:
+                    first, ranged = pending.popleft()
+                    yield place(first, ranged.result())
+            while pending:
+                first, ranged = pending.popleft()
+                yield place(first, ranged.result())
     if done < len(samples):
         yield done, out[done:]
 
