@@ -203,11 +203,14 @@ def displacements(robot: Robot, values: Mapping[str, float] | None,
 
 def readings(robot: Robot, displacements_: Mapping[str, float],
              tensions_: Mapping[str, float], rest: np.ndarray | None = None,
-             young_modulus: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+             young_modulus: float | None = None, measured: Collection[str] = ()
+             ) -> tuple[np.ndarray, np.ndarray]:
     """``(T, y)`` per tendon of one reading: measured length changes ``displacements_`` (m)
-    and tensions ``tensions_`` (N) by tendon name; every measured tendon needs its tension.
-    ``rest``: the tendons' :func:`rest_lengths`, if known; ``young_modulus``: as for
-    :func:`tension_error`."""
+    and tensions ``tensions_`` (N) by tendon name; every measured tendon needs its tension,
+    and the tendons ``measured`` their length change. ``rest``: the tendons'
+    :func:`rest_lengths`, if known; ``young_modulus``: as for :func:`tension_error`."""
+    if absent := [n for n in measured if n not in displacements_]:
+        raise ValueError(f"displacement {absent[0]}: missing: the tendon is measured")
     missing = [n for n in displacements_ if n not in (tensions_ or {})]
     if missing:
         raise ValueError(f"tension {missing[0]}: missing: the tendon's length change is "
@@ -246,10 +249,7 @@ def many_readings(robot: Robot, displacements: Sequence[Mapping[str, float]],
     errors = {}
     for k in np.flatnonzero(~ok).tolist():
         try:
-            missing = [name for name in measured if name not in displacements[k]]
-            if missing:
-                raise ValueError(f"displacement {missing[0]}: missing: the tendon is measured")
-            T[k], y[k] = readings(robot, displacements[k], tensions[k], rest, E[k])
+            T[k], y[k] = readings(robot, displacements[k], tensions[k], rest, E[k], measured)
         except ValueError as exc:
             T[k], y[k], errors[k] = 0.0, 0.0, str(exc)
     return T, y, errors

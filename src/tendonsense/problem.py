@@ -76,20 +76,22 @@ class Problem:
         """``(T, y)`` per tendon of one reading, by the rules of :mod:`tendonsense.inputs`
         (``young_modulus``: the sample's own, where it is not the robot file's); every
         measured tendon needs its length change and its tension."""
-        T, y, errors = self.many_readings([displacements], [tensions], [young_modulus])
-        if errors:
-            raise ValueError(errors[0])
-        return T[0], y[0]
+        return inputs.readings(self.robot, displacements, tensions, self.rest_lengths,
+                               young_modulus, self.measured_names)
 
     def many_readings(self, displacements: Sequence[Mapping[str, float]],
                       tensions: Sequence[Mapping[str, float]], young_modulus=None
                       ) -> tuple[np.ndarray, np.ndarray, dict[int, str]]:
-        """:meth:`readings` of n readings at once (:func:`tendonsense.inputs.many_readings`):
-        ``(T, y)`` (n, n_t) and the reason every bad one breaks a rule, by index."""
-        names = self.robot.tendon_names
-        return inputs.many_readings(self.robot, displacements, tensions,
-                                    [names[j] for j in self.measured], self.rest_lengths,
-                                    young_modulus)
+        """:meth:`readings` of n readings at once (:func:`tendonsense.inputs.many_readings`:
+        the rules on arrays, a series' cost): ``(T, y)`` (n, n_t) and the reason every bad one
+        breaks a rule, by index."""
+        return inputs.many_readings(self.robot, displacements, tensions, self.measured_names,
+                                    self.rest_lengths, young_modulus)
+
+    @cached_property
+    def measured_names(self) -> tuple[str, ...]:
+        """The measured tendons' names."""
+        return tuple(self.robot.tendon_names[j] for j in self.measured)
 
     def drive(self, tensions, targets) -> Drive:
         return Drive(np.asarray(tensions, float), self.known_forces, self.load_X, self.gravity,
