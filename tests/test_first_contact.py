@@ -76,6 +76,37 @@ def test_a_bad_reading_is_marked_by_the_online_estimator_and_a_series(prototype,
     assert not series[1].converged and words in series[1].note
 
 
+def test_a_series_checks_its_readings_as_one_reading_is_checked(prototype):
+    # the rules on arrays (a series) against inputs.readings on each (one reading)
+    prob = problem(prototype, ["t1"], [TIP])
+    rows = [({"t1": -0.005}, {"t1": 2.1}), ({"t1": "-0.005"}, {"t1": " 2.1 "}),
+            ({"t1": np.float32(-0.005)}, {"t1": True, "t2": np.int64(0)}),
+            ({"t1": -0.005}, {"t1": [2.1], "t2": [0.0], "t3": [0.0]}),
+            ({"t1": np.array([-0.005]), "t2": np.array([0.0])}, {"t1": 2.1, "t2": 0.0}),
+            ({"t1": -0.005}, {"t1": None}), ({}, {"t1": 2.1}), ({"t2": 0.0}, {"t2": 1.0}),
+            ({"t1": -0.005}, {"t1": 2.1, "t9": 1.0}), ({"t1": -0.005}, {"t1": 40.0}),
+            *((d, t) for d, t, _ in READINGS_SLIPS)]
+    T, y, errors = prob.many_readings([d for d, _ in rows], [t for _, t in rows])
+    for k, (d, t) in enumerate(rows):
+        try:
+            one = prob.readings(d, t)
+        except ValueError as exc:
+            assert errors.get(k) == str(exc), (d, t)
+        else:
+            assert k not in errors and np.array_equal(one, (T[k], y[k])), (d, t)
+    assert {3, 4, 5, 6, 7} <= set(errors)  # sequences, None and missing lengths refused
+    assert 0 not in errors and 1 not in errors and 2 not in errors
+    # every value a sequence (numpy makes a table of them)
+    _, _, errors = prob.many_readings([{"t1": -0.005}] * 2,
+                                      [{"t1": [2.1], "t2": [0.0], "t3": [0.0]}] * 2)
+    assert set(errors) == {0, 1} and "tension t1: not a number" in errors[0]
+    _, _, errors = prob.many_readings([dict.fromkeys(("t1", "t2", "t3"), np.zeros(1))] * 2,
+                                      [{"t1": 2.1, "t2": 0.0, "t3": 0.0}] * 2)
+    assert set(errors) == {0, 1} and "displacement t1: not a number" in errors[0]
+    with pytest.raises(ValueError, match="2 displacement and 3 tension readings"):
+        prob.many_readings([d for d, _ in rows[:2]], [t for _, t in rows[:3]])
+
+
 @pytest.mark.parametrize("call, words", [
     (lambda r: solve(r, [2.0]), "tensions: a mapping {tendon: value} such as {'t1': 2.0}, not a "
                                 "list"),
@@ -294,6 +325,30 @@ def test_a_live_log_into_a_file_interrupted(tmp_path, monkeypatch, capsys):
     assert tcli.main(args) == 0
     assert "no row answered; nothing written" in capsys.readouterr().err
     assert out.read_text() == "kept\n" and [p.name for p in tmp_path.iterdir()] == ["live.csv"]
+
+
+def test_a_logs_chunks_done_before_a_failure_are_handed_over(prototype, monkeypatch):
+    """With the friction history a chunk is handed over once its stuck rows have their range
+    (on a second thread, while the next chunk is scanned); a failure of the scan still hands
+    over the chunks done before it, in order."""
+    from tendonsense import logs
+    from tendonsense.readings import Sample
+    samples = [Sample(i + 1, None, {"t1": 2.0, "t2": 0.0, "t3": 0.0}, {"t1": -0.005}, {})
+               for i in range(250)]
+
+    def chunks(prob, displacements, tensions, noise, chunk, **kw):
+        yield 0, ["a"] * 100
+        yield 100, ["b"] * 100
+        raise RuntimeError("the scan failed")
+
+    monkeypatch.setattr(logs, "series_chunks", chunks)
+    monkeypatch.setattr(logs, "_stuck_ranges", lambda prob, rows, estimates, noise: [
+        e.upper() for e in estimates])
+    got = []
+    with pytest.raises(RuntimeError, match="the scan failed"):
+        for first, estimates in logs.estimate_chunks(prototype, ["t1"], samples, [TIP]):
+            got.append((first, estimates))
+    assert got == [(0, ["A"] * 100), (100, ["B"] * 100)]
 
 
 def test_a_header_only_log_is_an_error(tmp_path):

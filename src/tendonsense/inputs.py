@@ -220,23 +220,30 @@ def readings(robot: Robot, displacements_: Mapping[str, float],
 
 
 def many_readings(robot: Robot, displacements: Sequence[Mapping[str, float]],
-                  tensions: Sequence[Mapping[str, float]], measured: Collection[str] = (),
-                  rest: np.ndarray | None = None, young_modulus=None
+                  tensions: Sequence[Mapping[str, float]], rest: np.ndarray | None = None,
+                  young_modulus: float | Sequence[float | None] | None = None,
+                  measured: Collection[str] = ()
                   ) -> tuple[np.ndarray, np.ndarray, dict[int, str]]:
     """:func:`readings` of n readings at once: ``(T, y)`` (n, n_t) and the reason every bad one
-    breaks a rule, by index (its row of T and y zeros). The tendons ``measured`` need a length
-    change in every reading; ``young_modulus`` is one value or one per reading (None: the
-    robot file's). The rules are checked on the arrays; a reading they catch is checked again
-    by :func:`readings` alone, for its message."""
+    breaks a rule, by index (its row of T and y zeros); ``young_modulus`` is one value or one
+    per reading (None: the robot file's). The rules are checked on the arrays; a reading they
+    catch is checked again by :func:`readings` alone, for its message."""
     n, names = len(tensions), robot.tendon_names
+    if len(displacements) != n:
+        raise ValueError(f"{len(displacements)} displacement and {n} tension readings (one of "
+                         f"each per sample)")
     rest = rest_lengths(robot) if rest is None else rest
     E = np.array([robot.rod.young_modulus if e is None else e for e in np.broadcast_to(
         np.asarray(young_modulus, object), (n,))], float)
+
+    def table(maps) -> np.ndarray:
+        a = np.array([[m.get(name, 0.0) for name in names] for m in maps], float)
+        if a.size and a.shape != (n, len(names)):  # values that are sequences
+            raise ValueError
+        return a.reshape(n, len(names))
+
     try:
-        T = np.array([[t.get(name, 0.0) for name in names] for t in tensions],
-                     float).reshape(n, len(names))
-        y = np.array([[d.get(name, 0.0) for name in names] for d in displacements],
-                     float).reshape(n, len(names))
+        T, y = table(tensions), table(displacements)
         keys_ok = np.array([set(d) <= set(names) and set(t) <= set(names)
                             and all(name in d for name in measured) and all(name in t for name in d)
                             for d, t in zip(displacements, tensions)], bool).reshape(n)

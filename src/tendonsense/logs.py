@@ -36,8 +36,9 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
                     ) -> Iterator[tuple[int, list[SampleEstimate | None]]]:
     """Estimate every good sample of a log in order, each warm-started from the last good one
     (:func:`~tendonsense.tracking.series_chunks`); yields ``(first, estimates)`` as chunks
-    finish, None for a bad sample. ``dynamic``: over the samples' time stamps with the damped
-    model (:class:`~tendonsense.filtering.MotionFilter`)."""
+    finish (with the friction history, each once its stuck rows have their range, while the
+    next chunk is scanned), None for a bad sample. ``dynamic``: over the samples' time stamps
+    with the damped model (:class:`~tendonsense.filtering.MotionFilter`)."""
     prob = problem(robot, measured, unknowns, point_forces)
     if dynamic:
         if error := motion_step_error("the log", samples):
@@ -79,15 +80,22 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
         # chunk (the compiled programs release the GIL: each takes a core)
         with ThreadPoolExecutor(1) as pool:
             pending: deque = deque()
-            for first, estimates in chunks:
-                rows = [samples[k] for k in good[first:first + len(estimates)]]
-                pending.append((first, pool.submit(_stuck_ranges, prob, rows, estimates, noise)))
-                if len(pending) > 1:
+
+            def handed(keep: int):  # the chunks with their ranges, but the last ``keep``
+                while len(pending) > keep:
                     first, ranged = pending.popleft()
                     yield place(first, ranged.result())
-            while pending:
-                first, ranged = pending.popleft()
-                yield place(first, ranged.result())
+
+            try:
+                for first, estimates in chunks:
+                    rows = [samples[k] for k in good[first:first + len(estimates)]]
+                    pending.append((first, pool.submit(_stuck_ranges, prob, rows, estimates,
+                                                       noise)))
+                    yield from handed(1)
+            except Exception:  # the chunks done before a failure are still handed over
+                yield from handed(0)
+                raise
+            yield from handed(0)
     if done < len(samples):
         yield done, out[done:]
 

@@ -85,8 +85,8 @@ class Problem:
         """:meth:`readings` of n readings at once (:func:`tendonsense.inputs.many_readings`:
         the rules on arrays, a series' cost): ``(T, y)`` (n, n_t) and the reason every bad one
         breaks a rule, by index."""
-        return inputs.many_readings(self.robot, displacements, tensions, self.measured_names,
-                                    self.rest_lengths, young_modulus)
+        return inputs.many_readings(self.robot, displacements, tensions, self.rest_lengths,
+                                    young_modulus, self.measured_names)
 
     @cached_property
     def measured_names(self) -> tuple[str, ...]:

@@ -166,9 +166,9 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
             kind, _, name = col.partition("_")
             if kind == "tension" and not 0 <= v <= columns.top[robot.tendon_names.index(name)]:
                 error = tension_error(robot, name, v)
-            elif kind == "displacement" and not abs(v) < columns.rest[
-                    robot.tendon_names.index(name)]:
-                error = displacement_error(name, v, columns.rest[robot.tendon_names.index(name)])
+            elif kind == "displacement" and not abs(v) < (
+                    rest := columns.rest[robot.tendon_names.index(name)]):
+                error = displacement_error(name, v, rest)
             if error:
                 break
             values[col] = v

@@ -83,6 +83,9 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
     if (prob.located or values) and history is not None:
         raise ValueError("a friction history is followed with the model's own values and "
                          "known points only")
+    # each sample's tension bound with its own E
+    varied = varied_values(model.values, values, n)
+    T, Y, errors = prob.many_readings(displacements, tensions, varied.get("young_modulus"))
     if prob.located:  # sample by sample: X searched first, then followed (and after failures)
         if values:
             raise ValueError("values per sample are not available with located forces")
@@ -96,10 +99,7 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
             if name not in robot.tendon_names:
                 raise ValueError(f"{what} {name}: no such tendon (robot has "
                                  f"{', '.join(robot.tendon_names)})")
-    varied = varied_values(model.values, values, n)
     out: list[SampleEstimate | None] = [None] * n
-    # each sample's tension bound with its own E
-    T, Y, errors = prob.many_readings(displacements, tensions, varied.get("young_modulus"))
     for k, error in errors.items():
         out[k] = SampleEstimate.failed(prob, f"bad value: {error}")
     tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.any(T != 0, axis=0)))))
