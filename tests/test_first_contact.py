@@ -624,6 +624,13 @@ def test_an_output_that_is_an_input_is_refused_and_the_input_kept(tmp_path):
         assert p.returncode == 1 and named in p.stderr and "overwrite" in p.stderr, p.stderr
     rc, err, jax_loaded = refused_before_jax("sweep", robot, sets, "-o", sets)
     assert rc == 1 and "overwrite" in err and not jax_loaded
+    # an analysis writes fixed names into its folder: the table there is one of them
+    table = tmp_path / "compare.csv"
+    table.write_bytes((ROOT / "src" / "tendonsense" / "data" / "paper_experiments.csv")
+                      .read_bytes())
+    before[table] = table.read_bytes()
+    rc, err, jax_loaded = refused_before_jax("compare", robot, table, "-o", tmp_path)
+    assert rc == 1 and "writes compare.csv, which is the table" in err and not jax_loaded
     summary = estimate_file(load_robot(robot), log, log, [PointForceUnknown(0.25, (0, 0, -1))])
     assert "the log itself" in summary.error
     assert {p: p.read_bytes() for p in before} == before

@@ -955,6 +955,19 @@ def _check_analysis(args, robot):
     if not os.access(parent, os.W_OK):
         raise ValueError(f"-o/--out-dir {args.out_dir}: the folder {str(parent)!r} is not "
                          f"writable")
+    for name in (*ANALYSIS_FILES[args.command], f"{args.command}_summary.json"):
+        for what, inp in (("the robot file", args.robot),
+                          ("the table", getattr(args, "csv", None))):
+            if inp and (out / name).is_file() and os.path.samefile(out / name, inp):
+                raise ValueError(f"-o/--out-dir {args.out_dir}: writes {name}, which is {what} "
+                                 f"({inp}): writing it would overwrite an input")
+
+
+#: the files an analysis writes into its folder (and ``<command>_summary.json``)
+ANALYSIS_FILES = {"sensitivity": ("sensitivity_single.csv", "sensitivity_3d.json",
+                                  "sensitivity_single.png", "sensitivity_3d.png"),
+                  "resolution": ("resolution.csv", "resolution.png"),
+                  "compare": ("compare.csv", "compare.png")}
 
 
 def _analysis_run(args, robot):
@@ -978,25 +991,25 @@ def _analysis_run(args, robot):
                    "three_tendons": analyses.summary_3d(entries)}
         keys = sorted({k for r in rows for k in r})
         folder()
-        write_csv_atomic(out / "sensitivity_single.csv", keys,
-                         [[r.get(k, "") for k in keys] for r in rows])
-        write_text_atomic(out / "sensitivity_3d.json", json.dumps(entries))
+        table_, json_, png_, png_3d = (out / name for name in ANALYSIS_FILES["sensitivity"])
+        write_csv_atomic(table_, keys, [[r.get(k, "") for k in keys] for r in rows])
+        write_text_atomic(json_, json.dumps(entries))
         ok = all("note" not in r and all(np.isfinite(v) for k, v in r.items()
                                            if k.endswith("_N")) for r in rows) \
             and all(e["converged"] for e in entries)
-        files += [out / "sensitivity_single.csv", out / "sensitivity_3d.json",
-                  plotting.sensitivity_single(rows, out / "sensitivity_single.png"),
-                  plotting.ellipsoids(entries, out / "sensitivity_3d.png")]
+        files += [table_, json_, plotting.sensitivity_single(rows, png_),
+                  plotting.ellipsoids(entries, png_3d)]
     elif args.command == "resolution":
         rows = analyses.resolution(robot, progress=prog)
         summary = analyses.resolution_summary(rows)
         ok = all(r["converged"] for r in rows)
         keys = ["force_gF", "resolution_x_g", "resolution_y_g", "resolution_z_g", "converged"]
         folder()
-        write_csv_atomic(out / "resolution.csv", keys,
+        table_, png_ = (out / name for name in ANALYSIS_FILES["resolution"])
+        write_csv_atomic(table_, keys,
                          [[" ".join(map(str, r[k])) if k == "force_gF" else r[k] for k in keys]
                           for r in rows])
-        files += [out / "resolution.csv", plotting.resolution(rows, out / "resolution.png")]
+        files += [table_, plotting.resolution(rows, png_)]
     else:
         from . import experiments
         table = analyses.compare(robot, args.table, progress=prog)
@@ -1005,11 +1018,12 @@ def _analysis_run(args, robot):
             summary[m]["same_as"] = earlier
         ok = all(r.converged for rows in table.values() for r in rows)
         folder()
-        write_csv_atomic(out / "compare.csv", ["model", "case", "applied", "estimate", "error"],
+        table_, png_ = (out / name for name in ANALYSIS_FILES["compare"])
+        write_csv_atomic(table_, ["model", "case", "applied", "estimate", "error"],
                          [[m, r.case, " ".join(map(str, r.applied)),
                            "" if r.ours is None else " ".join(map(str, r.ours)), r.error(r.ours)]
                           for m, rows in table.items() for r in rows])
-        files += [out / "compare.csv", plotting.comparison(table, out / "compare.png")]
+        files += [table_, plotting.comparison(table, png_)]
     prog.close()
     write_text_atomic(out / f"{args.command}_summary.json", json.dumps(summary, indent=1))
     files.append(out / f"{args.command}_summary.json")
