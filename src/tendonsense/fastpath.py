@@ -1,5 +1,5 @@
 """The fast path: the compiled per-sample step of the estimation problem, over a series (one
-compiled scan, :func:`tracker`) or one sample at a time (:func:`stepper`).
+compiled scan, :func:`tracker`) or one sample at a time (:func:`live`).
 
 Each sample starts from a first-order prediction (the previous solution plus its sensitivity
 times the change of the measurements) and takes quasi-Newton steps with an inverse Jacobian
@@ -20,13 +20,15 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.flatten_util import ravel_pytree
 
 from . import linalg, tendons
 from .compiled import Program
+from .inputs import EDGE, Noise
 from .kinematics import poses, positions
 from .model import Structure, points_at
-from .problem import Problem
-from .sliding import FIXED_POINT, STATE_TOL, play, pulled
+from .problem import Problem, noise_band
+from .sliding import FIXED_POINT, NOISE_REACH, STATE_TOL, Band, play, pulled
 from .statics import (CACHE_SIZE, Drive, Scaling, admissible, residual, scaling)
 
 
@@ -344,6 +346,128 @@ def tracker(structure: Structure, measured: tuple[int, ...], n_z: int,
                                        step_tol, until_failure))
 
 
+#: the band's ends followed from sample to sample, at most 2**ENDS_KEPT (the first of them
+#: when more tendons are stuck; the others start from the sample's own solution)
+ENDS_KEPT = 6
+
+
+class Ends(NamedTuple):
+    """The ends of the stuck tendons' friction band, each followed from sample to sample
+    (:func:`live`): slot j holds the carry of the j-th sign pattern of the stuck tendons (as
+    ``itertools.product((-1, 1), ...)``: the first stuck tendon the most significant bit)."""
+
+    carry: Carry  # leading axis: slots, 2**min(n_t, ENDS_KEPT)
+    ok: jax.Array  # (slots,) the slot holds a converged carry
+    stuck: jax.Array  # (n_t,) bool: the stuck tendons the slots are for
+
+
+def _followed(structure: Structure, step, carry, band, d, given, unknowns, values, skip,
+              ends: Ends | None = None, stuck_given=None, tension_noise=None):
+    """One sample whose friction follows its history (:func:`follower`): ``(carry, row,
+    state, band after)``; a failed or skipped sample keeps the history. One solve per pass of
+    one loop (one copy of ``step`` in the program).
+
+    With ``ends``, the same loop then solves every end of the stuck tendons' band (each stuck
+    tendon pulled in or paid out, the others at their state), each from its slot (or the
+    sample's own carry: the slots are for one set of stuck tendons), and also returns each
+    tendon's direction (+1 in, −1 out, 0 stuck: a state farther from ±1 than the tension
+    noise reaches, as :func:`~tendonsense.sliding.labels`, or ``stuck_given``), the ends after
+    the sample (as they were if it failed) and the unknowns z at each end (NaN where not
+    converged or not an end)."""
+    nq = structure.nq
+    mu = values.friction
+    keeps, after_pull = pulled(band, d.tensions, given)
+    ones = jnp.ones_like(mu)
+
+    def solve(c, s):
+        return step(c, d, {"friction": s * mu}, unknowns, values)
+
+    blank = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype),
+                                   jax.eval_shape(solve, carry, ones)[1])
+    st = dict(k=0, new=carry, tr=blank, s=ones, band=band, settled=jnp.asarray(False),
+              done=jnp.asarray(skip))
+    if ends is not None:
+        st.update(j=0, n_ends=0, stuck=jnp.zeros(mu.shape, bool), code=ones, ends=ends,
+                  z=jnp.full((2 ** mu.shape[0], carry.x.size - nq), jnp.nan))
+
+    def again(st):
+        # one solve a pass: the sample's own, the first at the state of the last sample's
+        # shape, then at its own until it settles; then the band's ends
+        k, tr, s = st["k"], st["tr"], st["s"]
+        # the turning of the shape (one copy in the program; not needed pulled in)
+        phi = jax.lax.cond(keeps, lambda: jnp.zeros_like(mu), lambda: tendons.turning(
+            structure, values, jnp.where(k == 0, carry.x, tr.x)[:nq]))
+        s_own, after_own = jax.lax.cond(keeps, lambda: (ones, after_pull),
+                                        lambda: play(band, mu, d.tensions, phi, given))
+        failed = (k > 0) & ~tr.converged
+        settles = ~st["settled"] & (k > 0) & (
+            failed | keeps | (jnp.max(jnp.abs(s_own - s)) <= STATE_TOL) | (k >= FIXED_POINT))
+        settled = st["settled"] | settles
+        out = dict(st, settled=settled, s=jnp.where(settled, s, s_own),
+                   band=_where(settles, _where(failed, band, after_own), st["band"]))
+        go, c_in, s_in = ~settled, st["new"], s_own
+        if ends is not None:
+            out, end, c_end, s_end = _next_end(out, settles, phi, stuck_given, tension_noise,
+                                               mu)
+            go, c_in = go | end, _where(settled, c_end, c_in)
+            s_in = jnp.where(settled, s_end, s_in)
+        c_out, row = jax.lax.cond(go, lambda: solve(c_in, s_in), lambda: (c_in, blank))
+        out.update(k=k + ~settled, new=_where(settled, out["new"], c_out),
+                   tr=_where(settled, tr, row), done=~go)
+        if ends is not None:  # the end solved, in its slot (an index past the end: none)
+            j, e = out["j"], out["ends"]
+            at = jnp.where(end, j, out["z"].shape[0])
+
+            def put(a, b):
+                return a.at[at].set(b, mode="drop")
+
+            out.update(j=j + end, z=put(out["z"], jnp.where(row.converged, row.x[nq:], jnp.nan)),
+                       ends=Ends(jax.tree_util.tree_map(put, e.carry, c_out),
+                                 put(e.ok, row.converged), e.stuck))
+        return out
+
+    st = jax.lax.while_loop(lambda st: ~st["done"], again, st)
+    if ends is None:
+        return st["new"], st["tr"], st["s"], st["band"]
+    kept = _where(st["tr"].converged, st["ends"]._replace(stuck=st["stuck"]), ends)
+    return st["new"], st["tr"], st["s"], st["band"], st["code"], kept, st["z"]
+
+
+def _next_end(st, settles, phi, stuck_given, tension_noise, mu):
+    """:func:`_followed`'s band ends: on the pass where the sample settles (``phi`` the
+    turning of its shape), its directions, stuck tendons and number of ends (2**stuck, none
+    if it failed or none is stuck); on each pass from there, whether an end is left to solve,
+    the carry it starts from and its state. An end starts from its own last carry or from
+    the sample's; its sensitivity is not needed (no exact pass: the carry's inverse Jacobian
+    is refreshed where it fails)."""
+    s, tr = st["s"], st["tr"]
+    width = mu * phi
+    edge = jnp.maximum(EDGE, jnp.where(width > 0, NOISE_REACH * tension_noise / jnp.where(
+        width > 0, width, 1.0), 0.0))
+    sliding = (s >= 1 - edge) | (s <= -1 + edge)
+    stuck = tr.converged & (jnp.asarray(stuck_given, bool) | ~sliding)
+    n = jnp.sum(stuck)
+    st = dict(st, stuck=jnp.where(settles, stuck, st["stuck"]),
+              code=jnp.where(settles, jnp.where(stuck, 0.0, jnp.where(s >= 1 - edge, 1.0, -1.0)),
+                             st["code"]),
+              n_ends=jnp.where(settles, jnp.where(n > 0, jnp.left_shift(1, n), 0),
+                               st["n_ends"]))
+    stuck, j, e = st["stuck"], st["j"], st["ends"]
+    # the j-th sign pattern of the stuck tendons, the first the most significant bit
+    shift = jnp.where(stuck, jnp.sum(stuck) - jnp.cumsum(stuck), 0)
+    signs = jnp.where(stuck, jnp.where(jnp.right_shift(j, shift) & 1, 1.0, -1.0), s)
+    # the same ends as the last sample's (ends past the slots start afresh)
+    follows = (j < e.ok.size) & e.ok[j] & jnp.all(e.stuck == stuck)
+    start = _where(follows, jax.tree_util.tree_map(lambda a: a[j], e.carry), st["new"])
+    start = start._replace(count=jnp.ones_like(start.count))
+    return st, st["settled"] & (j < st["n_ends"]), start, signs
+
+
+def _where(c, a, b):
+    """``a`` where ``c`` else ``b``, leaf by leaf of two trees of one structure."""
+    return jax.tree_util.tree_map(lambda a, b: jnp.where(c, a, b), a, b)
+
+
 @lru_cache(maxsize=CACHE_SIZE)
 def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
              tension_columns: tuple[int, ...], exact_every: int = EXACT_EVERY):
@@ -358,80 +482,110 @@ def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
     first sample, ``bands`` after each. A failed or skipped sample leaves the history as it
     was."""
     init, step = _sample_fns(structure, measured, n_z, tension_columns, exact_every)
-    nq = structure.nq
 
     def follow(x0, drives, unknowns, values, given, band, count, failing):
-        mu = values.friction
-
-        def solve(carry, d, s):
-            return step(carry, d, {"friction": s * mu}, unknowns, values)
-
-        def kept(failed, before, after):
-            return jax.tree_util.tree_map(lambda a, b: jnp.where(failed, a, b), before, after)
-
         def sample(c, dg, skip):
-            carry, band = c
-            d, g = dg
-            keeps, after_pull = pulled(band, d.tensions, g)
-            ones = jnp.ones_like(mu)
-
-            def state(x):  # the state at the shape x and the history after it
-                return jax.lax.cond(keeps, lambda: (ones, after_pull), lambda: play(
-                    band, mu, d.tensions, tendons.turning(structure, values, x[:nq]), g))
-
-            def again(st):
-                # one solve an iteration (one copy of the step in the program): the first
-                # with the state at the last sample's shape, then at its own until it settles
-                k, new, tr, s, after, _ = st
-                s_own, after_own = state(jnp.where(k == 0, carry.x, tr.x))
-                failed = (k > 0) & ~tr.converged
-                done = (k > 0) & (failed | keeps | (jnp.max(jnp.abs(s_own - s)) <= STATE_TOL)
-                                  | (k >= FIXED_POINT))
-                new, tr = jax.lax.cond(done, lambda: (new, tr), lambda: solve(new, d, s_own))
-                return (k + 1, new, tr, jnp.where(done, s, s_own),
-                        kept(failed, band, after_own), done)
-
-            blank = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype),
-                                           jax.eval_shape(solve, carry, d, ones)[1])
-            # skipped: the loop does not run (the carry and the history kept, blank outputs)
-            _, new, tr, s, band, _ = jax.lax.while_loop(
-                lambda st: ~st[-1], again, (0, carry, blank, ones, band, jnp.asarray(skip)))
+            new, tr, s, band = _followed(structure, step, c[0], c[1], *dg, unknowns, values,
+                                         skip)[:4]
             return (new, band), (tr, s, band)
 
         carry = init(x0, jax.tree_util.tree_map(lambda a: a[0], drives),
-                     {"friction": mu}, unknowns, values)
+                     {"friction": values.friction}, unknowns, values)
         return _until_failure(sample, (carry, band), (drives, given), count, failing)
 
     return Program(follow, "follower", (structure, measured, n_z, tension_columns,
                                          exact_every))
 
 
+class Live:
+    """The follower one sample at a time, each sample one call
+    (:class:`~tendonsense.online.OnlineEstimator`): :func:`follower`'s sample and the ends of
+    its stuck tendons' band (:func:`_followed`), with the state it carries from sample to
+    sample (the carry, the friction history and the ends) as one vector and the reading as
+    another (each call's arguments and outputs cost by the array):
+
+    - ``start(x0, reading, loads, unknowns, values) -> state``, the solution from ``x0``;
+    - ``sample(state, reading, loads, unknowns, values) -> (state, packed)``, the outputs
+      packed into one vector (:meth:`unpack`).
+
+    ``reading`` (:meth:`reading`) holds the tensions, the targets, the states the reading
+    sets (NaN: the history decides; all +1 without one: friction μ), where it says a tendon
+    is stuck, the noise, and a restart: from ``x`` (e.g. a rescue's solution) instead of the
+    state's carry, the history and the ends kept. ``loads``: the drive's point forces (n_p,
+    3), their X (n_p,) and gravity (3,)."""
+
+    def __init__(self, structure: Structure, measured: tuple[int, ...], n_z: int,
+                 tension_columns: tuple[int, ...], exact_every: int = EXACT_EVERY):
+        init, step = _sample_fns(structure, measured, n_z, tension_columns, exact_every)
+        nq, n_t, n_m = structure.nq, structure.n_tendons, len(measured)
+        n_x = nq + n_z
+        self.sizes = (n_t, n_m, n_t, n_t, 1, 1, 1, n_x)
+        self.n_x, self.n_t, self.nq = n_x, n_t, nq
+        tcols = np.array(tension_columns, int)
+
+        def parts(reading, loads):
+            T, targets, given, stuck, length, tension, restart, x0 = jnp.split(
+                reading, np.cumsum(self.sizes)[:-1])
+            return (Drive(T, *loads, targets), given, stuck > 0, length[0], tension[0],
+                    restart[0] > 0, x0)
+
+        def fresh(x0, d, unknowns, values):
+            carry = init(x0, d, {"friction": values.friction}, unknowns, values)
+            n = 2 ** min(n_t, ENDS_KEPT)
+            slots = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (n, *a.shape)),
+                                           carry)
+            nan = jnp.full(n_t, jnp.nan)
+            return carry, Band(nan, jnp.zeros(n_t), jnp.zeros(n_t)), Ends(
+                slots, jnp.zeros(n, bool), jnp.zeros(n_t, bool))
+
+        def start(x0, reading, loads, unknowns, values):
+            return ravel_pytree(fresh(x0, parts(reading, loads)[0], unknowns, values))[0]
+
+        def sample(state, reading, loads, unknowns, values):
+            d, given, stuck, length, tension, restart, x0 = parts(reading, loads)
+            shapes = jax.eval_shape(fresh, x0, d, unknowns, values)
+            carry, band, ends = ravel_pytree(jax.tree_util.tree_map(
+                lambda a: jnp.zeros(a.shape, a.dtype), shapes))[1](state)
+            carry = jax.lax.cond(restart, lambda: init(x0, d, {"friction": values.friction},
+                                                       unknowns, values), lambda: carry)
+            carry, row, s, band, code, ends, z = _followed(
+                structure, step, carry, band, d, given, unknowns, values, False, ends, stuck,
+                tension)
+            sigma = noise_band(jnp, row.dx_dm[nq:], n_m, d.tensions[tcols], length, tension)
+            return ravel_pytree((carry, band, ends))[0], jnp.concatenate([jnp.ravel(a).astype(
+                float) for a in (row.x, row.converged, row.iterations, row.admissible,
+                                 row.markers, sigma, s, code, z)])
+
+        key = (structure, measured, n_z, tension_columns, exact_every)
+        self.start = Program(start, "live_start", key)
+        self.sample = Program(sample, "live_sample", key)
+
+    def reading(self, tensions, targets, given, stuck, noise: Noise, restart=None
+                ) -> np.ndarray:
+        """The reading vector of :meth:`sample`; ``restart``: the solution to start from."""
+        x0 = np.zeros(self.n_x) if restart is None else restart
+        return np.concatenate([tensions, targets, given, stuck, (noise.length, noise.tension,
+                                                                  restart is not None), x0])
+
+    def unpack(self, flat: np.ndarray, n_markers: int) -> tuple:
+        """``(x, converged, iterations, admissible, markers (n_markers, 3), σ (n_z,), state
+        (n_t,), directions (n_t,: +1 in, −1 out, 0 stuck), z at each end of the band (2**n_t,
+        n_z; NaN where not converged or not an end))`` from :meth:`sample`'s packed vector
+        (numpy)."""
+        n_x, n_t, n_z = self.n_x, self.n_t, self.n_x - self.nq
+        m = n_x + 3 + 3 * n_markers
+        e = m + n_z + 2 * n_t
+        return (flat[:n_x], bool(flat[n_x]), int(flat[n_x + 1]), bool(flat[n_x + 2]),
+                flat[n_x + 3:m].reshape(n_markers, 3), flat[m:m + n_z],
+                flat[m + n_z:m + n_z + n_t], flat[m + n_z + n_t:e],
+                flat[e:].reshape(2 ** n_t, n_z))
+
+
 @lru_cache(maxsize=CACHE_SIZE)
-def stepper(structure: Structure, measured: tuple[int, ...], n_z: int,
-            tension_columns: tuple[int, ...], exact_every: int = EXACT_EVERY):
-    """The tracker one sample at a time: compiled ``init(x0, d0, p0, unknowns, values)`` and
-    ``step(carry, d, p, unknowns, values) -> (carry, row)``, the row and the turning angles of
-    its shape (a friction history's) packed into one vector (one transfer to the host;
-    :func:`unpack_row`)."""
-    init, step = _sample_fns(structure, measured, n_z, tension_columns, exact_every)
-
-    def packed(carry, d, p, unknowns, values):
-        carry, row = step(carry, d, p, unknowns, values)
-        phi = tendons.turning(structure, values, row.x[:structure.nq])
-        return carry, jnp.concatenate([jnp.ravel(a).astype(float) for a in (*row, phi)])
-
-    key = (structure, measured, n_z, tension_columns, exact_every)
-    return Program(init, "stepper_init", key), Program(packed, "stepper_step", key)
-
-
-def unpack_row(flat: np.ndarray, n_x: int, n_m: int, n_markers: int, n_t: int
-               ) -> tuple[Track, np.ndarray]:
-    """A :class:`Track` row and the turning angles (n_t,) of its shape from the packed vector
-    of :func:`stepper` (numpy)."""
-    sizes = (n_x, 1, 1, 1, n_x * n_m, 3 * n_markers, n_t, 1)
-    x, conv, its, jacs, dx_dm, markers, y, fine, phi = np.split(flat, np.cumsum(sizes))
-    return Track(x, bool(conv[0]), int(its[0]), int(jacs[0]), dx_dm.reshape(n_x, n_m),
-                 markers.reshape(n_markers, 3), y, bool(fine[0])), phi
+def live(structure: Structure, measured: tuple[int, ...], n_z: int,
+         tension_columns: tuple[int, ...], exact_every: int = EXACT_EVERY) -> Live:
+    """The :class:`Live` programs of a problem (one per robot structure and problem shape)."""
+    return Live(structure, measured, n_z, tension_columns, exact_every)
 
 
 def stacked_drives(prob: Problem, tensions: np.ndarray, targets: np.ndarray) -> Drive:

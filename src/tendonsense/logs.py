@@ -23,7 +23,7 @@ from .readings import (SKIPPED_SHOWN, LogSummary, ReadingsError, Sample, has_tim
                        motion_step_error, output_header, output_row, output_rows, parse_header,
                        parse_row, read_readings, with_sliding, write_csv_atomic)
 from .robot import Robot
-from .sliding import FrictionHistory, band_range
+from .sliding import GIVEN, FrictionHistory, band_range
 from .tracking import SampleEstimate, series_chunks
 
 #: samples per compiled scan of a file log
@@ -98,11 +98,6 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
             yield from handed(0)
     if done < len(samples):
         yield done, out[done:]
-
-
-#: a ``sliding_<tendon>`` cell as the state it sets (NaN: the history decides; ``stuck`` keeps
-#: the history's state and asks for the range)
-GIVEN = {"in": 1.0, "out": -1.0, "stuck": np.nan, "": np.nan}
 
 
 def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],

@@ -13,13 +13,13 @@ import jax
 import numpy as np
 
 from .estimation import estimate_problem
-from .fastpath import Track, stepper, unpack_row
+from .fastpath import live
 from .filtering import MotionFilter
 from .forward import INADMISSIBLE
 from .inputs import WALK, Noise, check_noise, sliding as check_sliding
-from .problem import Problem, band
+from .problem import Problem
 from .result import SampleEstimate
-from .sliding import FIXED_POINT, STATE_TOL, FrictionHistory, band_range, labels
+from .sliding import DIRECTION, GIVEN, band_range
 from .statics import solve_system
 
 #: evaluations of the solve from the straight rod that a sample the fast path could not
@@ -75,21 +75,26 @@ class OnlineEstimator:
         self.rescue_budget = rescue_budget
         self._filter = MotionFilter(prob, noise, walk, inertia) if dynamic else None
         model = prob.model
+        n_t = model.n_tendons
         self._square = len(prob.measured) == prob.n_z
-        self._tcols = tuple(range(model.n_tendons))
-        self._init, self._step = stepper(model.structure, prob.measured, prob.n_z, self._tcols)
+        self._live = live(model.structure, prob.measured, prob.n_z, tuple(range(n_t)))
         # on the device once: a numpy leaf would be copied in at every call
         self._values, self._unknowns = jax.device_put((model.values, prob.unknowns))
-        self._carry = None
+        self._state = None  # the carry, the friction history and the band's ends (Live)
         self._x = None  # last good [q; z]
-        self._phi = None  # the turning angles of its shape (n_t,)
         self._eval_cost = None  # s per evaluation with a Jacobian, measured
-        self._ref = prob  # located forces: the problem at the last estimated X
         self._search_cost = None  # s per search over X, measured
         self._failures = 0  # samples failed in a row
-        history = FrictionHistory(model.values.friction)
-        self._history = history if history.active and not dynamic and not prob.located else None
-        self._corners = {}  # the ends of a stuck tendon's band: signs -> carry
+        self._refer(prob)
+        self._follows = bool(np.any(np.asarray(model.values.friction) > 0)) and not (
+            dynamic or prob.located)
+        self._pulled_in = np.ones(n_t)  # without a history, every tendon pulled in
+        self._unstuck = np.zeros(n_t)
+
+    def _refer(self, prob: Problem):
+        """Located forces: refer the solution to the problem ``prob`` at the estimated X."""
+        d = prob.drive(np.zeros(prob.model.n_tendons), np.zeros(len(prob.measured)))
+        self._ref, self._loads = prob, jax.device_put((d.forces, d.load_X, d.gravity))
 
     def prepare(self):
         """Build (or load from the disk cache) every program a sample may need, with a
@@ -105,11 +110,8 @@ class OnlineEstimator:
     def reset(self):
         """Forget the last good sample: the next one starts from the straight rod (with
         ``dynamic``: at rest)."""
-        self._carry, self._x, self._phi = None, None, None
-        self._ref, self._failures = self.problem, 0
-        self._corners = {}
-        if self._history is not None:
-            self._history = FrictionHistory(self._history.mu)
+        self._state, self._x, self._failures = None, None, 0
+        self._refer(self.problem)
         if self._filter is not None:
             self._filter.reset()
 
@@ -123,103 +125,39 @@ class OnlineEstimator:
             return self._filter.update(displacements, tensions, time, sliding)
         start = _clock()
         prob = self.problem
+        given, stuck = self._pulled_in, self._unstuck
         try:
             T, y = prob.readings(displacements, tensions)
-            names = prob.robot.tendon_names
-            given = {}
-            if sliding:
-                check_sliding(prob.robot, sliding)
-                given = {names.index(n): d for n, d in sliding.items()}
+            if self._follows:  # the history decides (NaN) where the reading does not say
+                given = np.full(T.size, np.nan)
+                if sliding:
+                    said = check_sliding(prob.robot, sliding, default="").values()
+                    given = np.array([GIVEN[d] for d in said])
+                    stuck = np.array([d == "stuck" for d in said], float)
         except ValueError as exc:
             return self._failed(f"bad value: {exc}")
-        if self._history is None:
-            return self._sample(start, T, y, displacements, tensions, self._values)
-        before = self._history.copy()
-        if self._history.pulled(T, given):  # pulled in: the band does not matter
-            est = self._sample(start, T, y, displacements, tensions, self._values)
-            if not est.converged:  # a failed sample leaves the history as it was
-                self._history = before
-            return est
-        if self._x is not None:  # the turning of the last shape
-            self._history.phi = before.phi = self._phi
-        state = self._history.step(T, None, given)
-        for _ in range(FIXED_POINT):  # the state at the sample's own shape
-            est = self._sample(start, T, y, displacements, tensions, self._signed(state))
-            if not est.converged:  # a failed sample leaves the history as it was
-                self._history = before
-                return est
-            h = before.copy()
-            new = h.step(T, self._phi, given)  # at the turning of its own shape
-            self._history = h
-            if np.max(np.abs(new - state)) <= STATE_TOL:
-                break
-            state = new
-        directions = labels(state, self._history.mu, self._history.phi, self.noise.tension,
-                            [given.get(k) == "stuck" for k in range(len(names))])
-        stuck = [k for k, d in enumerate(directions) if d == "stuck"]
-        est = replace(est, friction_state=state, sliding=directions)
-        if not stuck:
-            self._corners = {}
-            return est
-        return replace(est, magnitude_range=self._band_range(est, state, stuck, T, y))
+        return self._sample(start, T, y[list(prob.measured)], displacements, tensions,
+                            (given, stuck))
 
-    def _signed(self, state):
-        """The values with every tendon's friction signed by its state."""
-        if np.all(state == 1.0):
-            return self._values
-        # a NumPy leaf: copied in by the call itself (jax.device_put costs ~0.15 ms)
-        return self._values._replace(friction=state * self._history.mu)
-
-    def _band_range(self, est, state, stuck, T, y) -> np.ndarray:
-        """(n, 2) the range of the magnitudes over the stuck tendons' band: each end followed
-        from its own last estimate (the first time from the sample's estimate, or a solve from
-        the straight rod with a fixed ``rescue_budget``); open on the side of an end not
-        found (:func:`~tendonsense.sliding.band_range`)."""
+    def _sample(self, start, T, targets, displacements, tensions, said) -> SampleEstimate:
+        """One sample on the fast path, rescued if it fails (``said``: the states the reading
+        sets and where it says a tendon is stuck)."""
         prob = self.problem
-        drive = self._ref.drive(T, y[list(prob.measured)])
-        found = []
-        for signs in itertools.product((-1.0, 1.0), repeat=len(stuck)):
-            s = state.copy()
-            s[stuck] = signs
-            values = self._signed(s)
-            carry = self._corners.get(signs)
-            if carry is None and self.rescue_budget:
-                x, ok, _ = self._rescue(drive, None, None, self.rescue_budget, values)
-                carry = self._init(x, drive, {}, self._unknowns, values) if ok else None
-            if carry is None:  # from the sample's own estimate, within the step's budget
-                carry = self._carry
-            carry, row = self._step(carry, drive, {}, self._unknowns, values)
-            row, _ = self._unpack(row)
-            if row.converged:
-                self._corners[signs] = carry
-                found.append(row.x[prob.model.nq:prob.model.nq + prob.n_magnitudes])
-            else:
-                self._corners.pop(signs, None)
-                found.append(np.full(prob.n_magnitudes, np.nan))
-        return band_range(est.magnitudes, found)
-
-    def _sample(self, start, T, y, displacements, tensions, values) -> SampleEstimate:
-        """One sample on the fast path with ``values``, rescued if it fails."""
-        prob = self.problem
-        targets = y[list(prob.measured)]
-        drive = self._ref.drive(T, targets)
-        model = prob.model
-        unknowns = self._unknowns
         if prob.located and self._x is None:  # no X yet: search its whole range
             return self._after_rescue(T, targets, displacements, tensions, None, 0,
-                                      "no estimate of the location", None, values)
-        if self._carry is None:
-            x0 = np.zeros(model.nq + prob.n_z)
-            self._carry = self._init(x0, drive, {}, unknowns, values)
+                                      "no estimate of the location", None, said)
+        if self._state is None:
+            x0 = np.zeros(prob.model.nq + prob.n_z)
+            self._state = self._live.start(x0, self._reading(T, targets, said), self._loads,
+                                           self._unknowns, self._values)
             if self._eval_cost is None:
-                self._eval_cost = self._time_evaluation(drive, displacements, tensions, values)
-        carry, row = self._step(self._carry, drive, {}, unknowns, values)
-        row, phi = self._unpack(row)
-        outside = self._outside(row.x)
-        if row.converged and not outside:
-            self._carry, self._x, self._phi, self._failures = carry, row.x, phi, 0
-            return self._estimate(row, T, int(row.iterations))
-        note = (INADMISSIBLE if not row.admissible else outside if row.converged
+                self._eval_cost = self._time_evaluation(self._ref.drive(T, targets),
+                                                        displacements, tensions, self._values)
+        est, row = self._solve(T, targets, said)
+        if est is not None:
+            return est
+        x, converged, iterations, admissible, state = row
+        note = (INADMISSIBLE if not admissible else self._outside(x) if converged
                 else "did not converge within the work budget")
         self._failures += 1
         left = self.time_limit - (_clock() - start)
@@ -229,38 +167,92 @@ class OnlineEstimator:
                     and left < self._search_cost and self._failures < 5):
                 return self._failed(note, row)
             return self._after_rescue(T, targets, displacements, tensions, self.rescue_budget,
-                                      int(row.iterations), note, row, values)
+                                      iterations, note, row, said)
         # evaluations that fit in the time left, less three for the step that follows a rescue
         budget = (None if self._x is None else self.rescue_budget if self.rescue_budget
                   else int(left / max(self._eval_cost, 1e-6)) - 3)
         if budget is not None and budget < 3:
             return self._failed(note, row)
-        return self._after_rescue(T, targets, displacements, tensions, budget,
-                                  int(row.iterations), note, row, values)
+        return self._after_rescue(T, targets, displacements, tensions, budget, iterations,
+                                  note, row, said)
+
+    def _reading(self, T, targets, said, restart=None) -> np.ndarray:
+        return self._live.reading(T, targets, *said, self.noise, restart)
 
     def _after_rescue(self, T, targets, displacements, tensions, budget, iterations, note,
-                      row, values):
-        """A rescue solve, then one step of the fast path from it (which also gives the
-        sensitivities): the estimate, or a failed sample."""
+                      row, said):
+        """A rescue solve (friction signed by the failed sample's state, if any), then the
+        sample again from its solution in one call (which also gives the sensitivities and
+        the band's ends): the estimate, or a failed sample."""
         prob = self.problem
-        unknowns = self._unknowns
+        values = self._signed(None if row is None else row[-1])
         t0 = _clock()
-        x, converged, evaluations = self._rescue(
-            self._ref.drive(T, targets), displacements, tensions, budget, values)
+        drive = self._ref.drive(T, targets)
+        x, converged, evaluations = self._rescue(drive, displacements, tensions, budget,
+                                                 values)
         if prob.located:
             self._search_cost = _clock() - t0
         if not converged:
             return self._failed(note, row)
-        drive = self._ref.drive(T, targets)
-        carry = self._init(x, drive, {}, unknowns, values)
+        drive = self._ref.drive(T, targets)  # (located: at the X found)
+        if self._state is None:
+            self._state = self._live.start(x, self._reading(T, targets, said), self._loads,
+                                           self._unknowns, self._values)
         if self._eval_cost is None and not prob.located:  # (located: timed by its search)
             self._eval_cost = self._time_evaluation(drive, displacements, tensions, values)
-        carry, row2 = self._step(carry, drive, {}, unknowns, values)
-        row2, phi = self._unpack(row2)
-        if not row2.converged or self._outside(row2.x):
-            return self._failed(INADMISSIBLE if not row2.admissible else note, row2)
-        self._carry, self._x, self._phi, self._failures = carry, row2.x, phi, 0
-        return self._estimate(row2, T, iterations + evaluations + int(row2.iterations))
+        est, row2 = self._solve(T, targets, said, x, iterations + evaluations)
+        if est is None:
+            return self._failed(INADMISSIBLE if not row2[3] else note, row2)
+        return est
+
+    def _solve(self, T, targets, said, restart=None, iterations=0):
+        """The sample from the state's carry (or from ``restart``, a solution) in one
+        compiled call (:class:`~tendonsense.fastpath.Live`): ``(estimate, row)``, the
+        estimate None (and the state as it was) if it did not converge or left a located
+        force's range; ``row``: (x, converged, iterations, admissible, friction state)."""
+        prob = self.problem
+        state, flat = self._live.sample(self._state, self._reading(T, targets, said, restart),
+                                        self._loads, self._unknowns, self._values)
+        x, converged, its, admissible, markers, sigma, s, code, z = self._live.unpack(
+            np.asarray(flat), len(prob.robot.markers))
+        row = (x, converged, iterations + its, admissible, s)
+        if not converged or self._outside(x):
+            return None, row
+        self._state, self._x, self._failures = state, x, 0
+        nq, n = prob.model.nq, prob.n_magnitudes
+        est = SampleEstimate(x[nq:nq + n], sigma[:n], dict(zip(prob.robot.marker_names, markers)),
+                             True, iterations + its, x, "", self._ref.locations(x), sigma[n:])
+        if not self._follows:
+            return est, row
+        est = replace(est, friction_state=s, sliding=tuple(map(DIRECTION.get, code.tolist())))
+        stuck = np.flatnonzero(code == 0)
+        if stuck.size:
+            ends = self._ends_of(z[:2**stuck.size, :n], s, stuck, self._ref.drive(T, targets))
+            est = replace(est, magnitude_range=band_range(est.magnitudes, ends))
+        return est, row
+
+    def _ends_of(self, z, state, stuck, drive) -> np.ndarray:
+        """The magnitudes at the ends of the band (``z`` from the call, NaN where an end was
+        not found), those not found solved from the straight rod with a fixed
+        ``rescue_budget`` if there is one."""
+        if not self.rescue_budget or not np.isnan(z).any():
+            return z
+        z = z.copy()
+        for j, signs in enumerate(itertools.product((-1.0, 1.0), repeat=stuck.size)):
+            if np.isnan(z[j]).any():
+                s = state.copy()
+                s[stuck] = signs
+                x, ok, _ = self._rescue(drive, None, None, self.rescue_budget, self._signed(s))
+                if ok:
+                    z[j] = x[self.problem.model.nq:][:z.shape[1]]
+        return z
+
+    def _signed(self, state):
+        """The values with every tendon's friction signed by its ``state`` (None: as they
+        are)."""
+        if state is None or np.all(state == 1.0):
+            return self._values
+        return self._values._replace(friction=state * np.asarray(self._values.friction))
 
     def _outside(self, x) -> str:
         """Why located forces at ``x`` are no estimate (an X outside its range), or ''."""
@@ -283,7 +275,7 @@ class OnlineEstimator:
         r = estimate_problem(prob, displacements, tensions, self.noise, None,
                              jax.device_get(values), budget=budget, total_budget=budget)
         if prob.located and r.converged:  # its x is referred to the estimated X
-            self._ref = prob.at([v for v in r.extra["locations"] if v is not None])
+            self._refer(prob.at([v for v in r.extra["locations"] if v is not None]))
         return r.extra["x"], r.converged, int(r.iterations)
 
     def _time_evaluation(self, drive, displacements, tensions, values) -> float:
@@ -297,22 +289,7 @@ class OnlineEstimator:
             best.append((_clock() - t0) / max(1, evaluations))
         return min(best)
 
-    def _unpack(self, flat) -> tuple[Track, np.ndarray]:
-        prob = self.problem
-        return unpack_row(np.asarray(flat), prob.model.nq + prob.n_z,
-                          len(prob.measured) + len(self._tcols), len(prob.robot.markers),
-                          prob.model.n_tendons)
-
-    def _estimate(self, row, T, iterations) -> SampleEstimate:
-        prob, noise = self.problem, self.noise
-        nq = prob.model.nq
-        sigma = band(row.dx_dm[nq:, :], len(prob.measured), T[list(self._tcols)], noise)
-        n = prob.n_magnitudes
-        return SampleEstimate(row.x[nq:nq + n], sigma[:n],
-                              dict(zip(prob.robot.marker_names, row.markers)), True, iterations,
-                              row.x, "", self._ref.locations(row.x), sigma[n:])
-
     def _failed(self, note: str, row=None) -> SampleEstimate:
         if row is None:
             return SampleEstimate.failed(self.problem, note)
-        return SampleEstimate.failed(self.problem, note, row.x, int(row.iterations))
+        return SampleEstimate.failed(self.problem, note, row[0], int(row[2]))

@@ -164,8 +164,14 @@ def band(dz_dm: np.ndarray, n_lengths: int, tensions: np.ndarray, noise: Noise) 
     """1-σ band of the magnitudes from their sensitivity ``dz_dm`` (…, n_z, m) to [lengths;
     tensions] (first-order propagation of the sensor noise, as in
     :mod:`tendonsense.estimation`); ``tensions`` (…, m − n_lengths)."""
-    tensions = np.asarray(tensions, float)
-    scale = np.concatenate([np.full((*tensions.shape[:-1], n_lengths), noise.length),
-                            noise.tension * np.abs(tensions)], axis=-1)
     with np.errstate(all="ignore"):  # a failed sample's sensitivity may not be finite
-        return np.sqrt(((dz_dm * scale[..., None, :]) ** 2).sum(axis=-1))
+        return noise_band(np, dz_dm, n_lengths, np.asarray(tensions, float), noise.length,
+                          noise.tension)
+
+
+def noise_band(xp, dz_dm, n_lengths: int, tensions, length, tension):
+    """:func:`band` in ``xp`` (numpy, or jax.numpy in a compiled program) with the noise's
+    ``length`` (m) and relative ``tension``."""
+    scale = xp.concatenate([xp.full((*tensions.shape[:-1], n_lengths), length),
+                            tension * xp.abs(tensions)], axis=-1)
+    return xp.sqrt(((dz_dm * scale[..., None, :]) ** 2).sum(axis=-1))

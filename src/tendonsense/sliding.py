@@ -34,6 +34,12 @@ from .tendons import turning
 #: passes to settle friction states with the shapes they give, and the tolerance on a state
 FIXED_POINT, STATE_TOL = 10, 1e-4
 
+#: a direction a log or a reading sets (``sliding_<tendon>``) as the state it sets: NaN, the
+#: history decides (``stuck`` keeps the history's state and marks the tendon stuck)
+GIVEN = {"in": 1.0, "out": -1.0, "stuck": np.nan, "": np.nan}
+#: a direction by its code in a compiled program's output (:func:`~tendonsense.fastpath.live`)
+DIRECTION = {1.0: "in", -1.0: "out", 0.0: "stuck"}
+
 #: standard deviations of the tensions' read-out noise within which a state cannot be told
 #: from its band's edge (:func:`reach`)
 NOISE_REACH = 3.0

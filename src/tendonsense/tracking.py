@@ -14,7 +14,7 @@ import numpy as np
 
 from .estimation import estimate_problem
 from .fastpath import (MAX_EVALUATIONS, MAX_JACOBIANS, Carry, Track,  # noqa: F401 (API)
-                       follower, stacked_drives, stepper, tracker, unpack_row)
+                       follower, stacked_drives, tracker)
 from .forward import model_for, why_not
 from .inputs import (Noise, check_noise, first_force_error, max_tension, tendon_vector,
                      tension_error)
