@@ -765,3 +765,27 @@ def test_a_sweeps_and_a_schedules_loads_are_bounded_with_their_own_modulus(proto
     with pytest.raises(ValueError, match="lengths are in metres"):  # 0.1 mm typed as 0.1
         sim.readings(noise_length=0.1)
     assert "robot" not in repr(sim) and sim.readings(noise_length=1e-4)["time"].size == 3
+
+
+def test_a_run_that_compiles_says_so_once_on_a_terminal(tmp_path):
+    """A first run on an empty cache compiles for seconds: on a terminal it says so once (not
+    taken for a hang); a run that loads its programs, or whose stderr is not a terminal, says
+    nothing."""
+    code = ("import io, sys\nfrom tendonsense.cli import main\n"
+            "class Err(io.StringIO):\n    def isatty(self):\n        return TTY\n"
+            "err = sys.stderr = Err()\nrc = main(sys.argv[1:])\n"
+            "sys.__stdout__.write(f'\\n@@{rc}\\n' + err.getvalue())\n")
+    args = ("fk", PROTOTYPE, "--displacement", "t1=-0.01")
+
+    def run(cache, tty):
+        env = dict(os.environ, TENDONSENSE_CACHE_DIR=str(tmp_path / cache))
+        p = subprocess.run([sys.executable, "-c", code.replace("TTY", str(tty)), *args],
+                           capture_output=True, text=True, timeout=300, env=env)
+        rc, *err = p.stdout.rsplit("\n@@", 1)[-1].split("\n", 1)
+        assert rc == "0" and p.stderr == "", p.stdout + p.stderr
+        return err[0] if err else ""
+
+    first = run("a", True)
+    assert first.count("compiling") == 1 and str(tmp_path / "a") in first, first
+    assert run("a", True) == ""  # loaded from the cache
+    assert run("b", False) == ""  # compiled, but not on a terminal

@@ -20,12 +20,13 @@ import os
 import sys
 import time
 from datetime import datetime, timezone
+from functools import partial
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
-from . import __version__, inputs
+from . import __version__, inputs, settings
 from .inputs import GravityUnknown, Noise, PointForceUnknown
 from .readings import ReadingsError
 from .robot import RobotFileError, load_robot
@@ -1637,6 +1638,8 @@ def main(argv=None) -> int:
             _resolve_robot(args)
         robot = load_robot(args.robot)
         _check(args, robot)
+        if sys.stderr.isatty() and not getattr(args, "quiet", False):
+            settings.on_first_compile = partial(print, file=sys.stderr, flush=True)
         if args.command in ("sensitivity", "resolution", "compare"):
             return 0 if _analysis_run(args, robot) else _not_converged()
         if args.command == "estimate" and args.logs is not None:

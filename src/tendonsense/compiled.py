@@ -25,6 +25,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from . import settings
 from .settings import cache_dir, compiler_options, unpinned
 
 
@@ -118,6 +119,7 @@ class Program:
 def _compile(jitted, args):
     """``jitted`` lowered for ``args`` and compiled with this package's compiler options, or
     without them where this XLA does not have them."""
+    _announce()
     lowered = jitted.lower(*args)
     with unpinned():  # XLA's code generation on several threads
         try:
@@ -126,6 +128,23 @@ def _compile(jitted, args):
             if "No such compile option" not in str(e):
                 raise
             return lowered.compile()
+
+
+_ANNOUNCED = False
+
+
+def _announce() -> None:
+    """Tell :data:`settings.on_first_compile <tendonsense.settings.on_first_compile>`, once
+    a process, that programs are being compiled."""
+    global _ANNOUNCED
+    hook = settings.on_first_compile
+    if hook is None or _ANNOUNCED:
+        return
+    _ANNOUNCED = True
+    root = cache_dir()
+    kept = (f"once for this robot's structure on this machine, then kept in {root / 'programs'}"
+            if root else "every run: TENDONSENSE_CACHE_DIR is empty, so none are kept")
+    hook(f"tendonsense: compiling the programs this run needs (5-20 s; {kept})")
 
 
 #: every program of this process, for :func:`release`

@@ -504,7 +504,8 @@ class Live:
     sample (the carry, the friction history and the ends) as one vector and the reading as
     another (each call's arguments and outputs cost by the array):
 
-    - ``start(x0, reading, loads, unknowns, values) -> state``, the solution from ``x0``;
+    - ``start(x0, reading, loads, unknowns, values) -> state``: a carry at ``x0``, no
+      history, no ends;
     - ``sample(state, reading, loads, unknowns, values) -> (state, packed)``, the outputs
       packed into one vector (:meth:`unpack`).
 
@@ -512,7 +513,8 @@ class Live:
     sets (NaN: the history decides; all +1 without one: friction μ), where it says a tendon
     is stuck, the noise, and a restart: from ``x`` (e.g. a rescue's solution) instead of the
     state's carry, the history and the ends kept. ``loads``: the drive's point forces (n_p,
-    3), their X (n_p,) and gravity (3,)."""
+    3), their X (n_p,) and gravity (3,). The sensitivity columns (for the 1-σ band) are the
+    measured lengths and the tensions of ``tension_columns``."""
 
     def __init__(self, structure: Structure, measured: tuple[int, ...], n_z: int,
                  tension_columns: tuple[int, ...], exact_every: int = EXACT_EVERY):

@@ -8,7 +8,7 @@ import sys
 import threading
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 
 def cache_dir() -> Path | None:
@@ -18,6 +18,12 @@ def cache_dir() -> Path | None:
         base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
         path = os.path.join(base, "tendonsense")
     return Path(path) if path else None
+
+
+#: called once, with a message, when this process first compiles a program where no kept
+#: one could be loaded (:mod:`tendonsense.compiled`): the command line prints it on a terminal,
+#: so that a first run's wait is not taken for a hang
+on_first_compile: Callable[[str], None] | None = None
 
 
 def jax_options() -> dict[str, object]:
