@@ -1629,6 +1629,7 @@ RUN = {"solve": _single, "fk": _single, "view": _view, "identify": _identify,
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
     parser = build_parser()
+    hook = settings.on_first_compile
     if not argv:
         parser.print_help(sys.stderr)
         return 2
@@ -1657,6 +1658,8 @@ def main(argv=None) -> int:
     except (RobotFileError, ValueError, OSError) as exc:  # a ViewError is an OSError
         print(f"tendonsense: error: {exc}", file=sys.stderr)
         return 1
+    finally:
+        settings.on_first_compile = hook
     return 0 if ok else _not_converged()
 
 

@@ -28,7 +28,7 @@ from .inputs import EDGE, Noise
 from .kinematics import poses, positions
 from .model import Structure, points_at
 from .problem import Problem, noise_band
-from .sliding import FIXED_POINT, NOISE_REACH, STATE_TOL, Band, play, pulled
+from .sliding import FIXED_POINT, STATE_TOL, Band, play, pulled, reach
 from .statics import (CACHE_SIZE, Drive, Scaling, admissible, residual, scaling)
 
 
@@ -356,9 +356,21 @@ class Ends(NamedTuple):
     (:func:`live`): slot j holds the carry of the j-th sign pattern of the stuck tendons (as
     ``itertools.product((-1, 1), ...)``: the first stuck tendon the most significant bit)."""
 
-    carry: Carry  # leading axis: slots, 2**min(n_t, ENDS_KEPT)
+    carry: Carry  # leading axis: slots; without its scaling (the sample's)
     ok: jax.Array  # (slots,) the slot holds a converged carry
     stuck: jax.Array  # (n_t,) bool: the stuck tendons the slots are for
+
+
+class Followed(NamedTuple):
+    """What :func:`_followed` returns for one sample."""
+
+    carry: Carry  # for the next sample (as it was if this one failed)
+    row: Track  # the sample's own solution
+    state: jax.Array  # (n_t,) the friction state it was solved with
+    band: Band  # the history after it (as it was if it failed)
+    code: jax.Array | None = None  # (n_t,) each tendon's direction: +1 in, −1 out, 0 stuck
+    ends: "Ends | None" = None  # the band's ends for the next sample
+    z: jax.Array | None = None  # (2**n_t, n_z) the unknowns at each end (NaN: none)
 
 
 def _followed(structure: Structure, step, carry, band, d, given, unknowns, values, skip,
@@ -384,26 +396,31 @@ def _followed(structure: Structure, step, carry, band, d, given, unknowns, value
 
     blank = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype),
                                    jax.eval_shape(solve, carry, ones)[1])
-    st = dict(k=0, new=carry, tr=blank, s=ones, band=band, settled=jnp.asarray(False),
-              done=jnp.asarray(skip))
+    zero = jnp.asarray(0)
+    st = dict(k=zero, new=carry, tr=blank, s=ones, band=band, last=band.phi,
+              settled=jnp.asarray(False), done=jnp.asarray(skip))
     if ends is not None:
-        st.update(j=0, n_ends=0, stuck=jnp.zeros(mu.shape, bool), code=ones, ends=ends,
+        st.update(j=zero, n_ends=zero, stuck=jnp.zeros(mu.shape, bool), code=ones, ends=ends,
                   z=jnp.full((2 ** mu.shape[0], carry.x.size - nq), jnp.nan))
 
     def again(st):
         # one solve a pass: the sample's own, the first at the state of the last sample's
         # shape, then at its own until it settles; then the band's ends
         k, tr, s = st["k"], st["tr"], st["s"]
-        # the turning of the shape (one copy in the program; not needed pulled in)
-        phi = jax.lax.cond(keeps, lambda: jnp.zeros_like(mu), lambda: tendons.turning(
-            structure, values, jnp.where(k == 0, carry.x, tr.x)[:nq]))
-        s_own, after_own = jax.lax.cond(keeps, lambda: (ones, after_pull),
-                                        lambda: play(band, mu, d.tensions, phi, given))
+        # the turning of the shape (one copy in the program; not needed pulled in, nor for
+        # the band's ends): the first pass's is the last sample's shape's
+        phi = jax.lax.cond(keeps | st["settled"], lambda: jnp.zeros_like(mu),
+                           lambda: tendons.turning(structure, values,
+                                                   jnp.where(k == 0, carry.x, tr.x)[:nq]))
+        last = jnp.where(k == 0, phi, st["last"])
+        s_own, after_own = jax.lax.cond(
+            keeps, lambda: (ones, after_pull),
+            lambda: play(band._replace(phi=last), mu, d.tensions, phi, given))
         failed = (k > 0) & ~tr.converged
         settles = ~st["settled"] & (k > 0) & (
             failed | keeps | (jnp.max(jnp.abs(s_own - s)) <= STATE_TOL) | (k >= FIXED_POINT))
         settled = st["settled"] | settles
-        out = dict(st, settled=settled, s=jnp.where(settled, s, s_own),
+        out = dict(st, settled=settled, s=jnp.where(settled, s, s_own), last=last,
                    band=_where(settles, _where(failed, band, after_own), st["band"]))
         go, c_in, s_in = ~settled, st["new"], s_own
         if ends is not None:
@@ -422,15 +439,17 @@ def _followed(structure: Structure, step, carry, band, d, given, unknowns, value
                 return a.at[at].set(b, mode="drop")
 
             out.update(j=j + end, z=put(out["z"], jnp.where(row.converged, row.x[nq:], jnp.nan)),
-                       ends=Ends(jax.tree_util.tree_map(put, e.carry, c_out),
-                                 put(e.ok, row.converged), e.stuck))
+                       ends=Ends(jax.tree_util.tree_map(put, e.carry, c_out._replace(
+                           scaling=None)), put(e.ok, row.converged), e.stuck))
         return out
 
     st = jax.lax.while_loop(lambda st: ~st["done"], again, st)
     if ends is None:
-        return st["new"], st["tr"], st["s"], st["band"]
-    kept = _where(st["tr"].converged, st["ends"]._replace(stuck=st["stuck"]), ends)
-    return st["new"], st["tr"], st["s"], st["band"], st["code"], kept, st["z"]
+        return Followed(st["new"], st["tr"], st["s"], st["band"])
+    # the ends kept for the next stuck sample: as they were when none was solved (the
+    # sample failed, or nothing is stuck)
+    kept = _where(st["n_ends"] > 0, st["ends"]._replace(stuck=st["stuck"]), ends)
+    return Followed(st["new"], st["tr"], st["s"], st["band"], st["code"], kept, st["z"])
 
 
 def _next_end(st, settles, phi, stuck_given, tension_noise, mu):
@@ -441,9 +460,7 @@ def _next_end(st, settles, phi, stuck_given, tension_noise, mu):
     the sample's; its sensitivity is not needed (no exact pass: the carry's inverse Jacobian
     is refreshed where it fails)."""
     s, tr = st["s"], st["tr"]
-    width = mu * phi
-    edge = jnp.maximum(EDGE, jnp.where(width > 0, NOISE_REACH * tension_noise / jnp.where(
-        width > 0, width, 1.0), 0.0))
+    edge = jnp.maximum(EDGE, reach(mu, phi, tension_noise, jnp))
     sliding = (s >= 1 - edge) | (s <= -1 + edge)
     stuck = tr.converged & (jnp.asarray(stuck_given, bool) | ~sliding)
     n = jnp.sum(stuck)
@@ -458,8 +475,8 @@ def _next_end(st, settles, phi, stuck_given, tension_noise, mu):
     signs = jnp.where(stuck, jnp.where(jnp.right_shift(j, shift) & 1, 1.0, -1.0), s)
     # the same ends as the last sample's (ends past the slots start afresh)
     follows = (j < e.ok.size) & e.ok[j] & jnp.all(e.stuck == stuck)
-    start = _where(follows, jax.tree_util.tree_map(lambda a: a[j], e.carry), st["new"])
-    start = start._replace(count=jnp.ones_like(start.count))
+    slot = jax.tree_util.tree_map(lambda a: a[j], e.carry)._replace(scaling=st["new"].scaling)
+    start = _where(follows, slot, st["new"])._replace(count=jnp.ones_like(st["new"].count))
     return st, st["settled"] & (j < st["n_ends"]), start, signs
 
 
@@ -485,9 +502,8 @@ def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
 
     def follow(x0, drives, unknowns, values, given, band, count, failing):
         def sample(c, dg, skip):
-            new, tr, s, band = _followed(structure, step, c[0], c[1], *dg, unknowns, values,
-                                         skip)[:4]
-            return (new, band), (tr, s, band)
+            out = _followed(structure, step, c[0], c[1], *dg, unknowns, values, skip)
+            return (out.carry, out.band), (out.row, out.state, out.band)
 
         carry = init(x0, jax.tree_util.tree_map(lambda a: a[0], drives),
                      {"friction": values.friction}, unknowns, values)
@@ -497,32 +513,51 @@ def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
                                          exact_every))
 
 
+class LiveRow(NamedTuple):
+    """One sample's outputs of :meth:`Live.sample` (numpy; :meth:`Live.unpack`)."""
+
+    x: np.ndarray  # (n_x,) the solution [q; z]
+    converged: bool  # and admissible
+    iterations: int  # residual evaluations
+    admissible: bool  # strain within the model's range
+    markers: np.ndarray  # (n_markers, 3)
+    sigma: np.ndarray  # (n_z,) 1-σ band of z
+    state: np.ndarray  # (n_t,) the friction state it was solved with
+    code: np.ndarray  # (n_t,) each tendon's direction: +1 in, −1 out, 0 stuck
+    z: np.ndarray  # (2**n_t, n_z) the unknowns at each end of the band (NaN: none)
+
+
 class Live:
     """The follower one sample at a time, each sample one call
     (:class:`~tendonsense.online.OnlineEstimator`): :func:`follower`'s sample and the ends of
     its stuck tendons' band (:func:`_followed`), with the state it carries from sample to
     sample (the carry, the friction history and the ends) as one vector and the reading as
-    another (each call's arguments and outputs cost by the array):
+    another (a call's cost grows with the number of its arrays):
 
     - ``start(x0, reading, loads, unknowns, values) -> state``: a carry at ``x0``, no
       history, no ends;
     - ``sample(state, reading, loads, unknowns, values) -> (state, packed)``, the outputs
-      packed into one vector (:meth:`unpack`).
+      packed into one vector (:meth:`unpack`);
+    - ``put(state, x0, reading, loads, unknowns, values, slot) -> (state, admissible)``: a
+      carry at ``x0`` (e.g. a rescue's solution at a band's end) into the end's slot.
 
     ``reading`` (:meth:`reading`) holds the tensions, the targets, the states the reading
-    sets (NaN: the history decides; all +1 without one: friction μ), where it says a tendon
-    is stuck, the noise, and a restart: from ``x`` (e.g. a rescue's solution) instead of the
-    state's carry, the history and the ends kept. ``loads``: the drive's point forces (n_p,
-    3), their X (n_p,) and gravity (3,). The sensitivity columns (for the 1-σ band) are the
-    measured lengths and the tensions of ``tension_columns``."""
+    sets (NaN: the history decides; all +1: every tendon pulled in, friction μ), where it
+    says a tendon is stuck, the noise, and a restart: from ``x`` (e.g. a rescue's solution)
+    instead of the state's carry, the history and the ends kept. ``loads``: the drive's
+    point forces (n_p, 3), their X (n_p,) and gravity (3,). The sensitivity columns (for the
+    1-σ band) are the measured lengths and the tensions of ``tension_columns``. ``follows``:
+    whether friction follows a history (else the state keeps no ends)."""
 
     def __init__(self, structure: Structure, measured: tuple[int, ...], n_z: int,
-                 tension_columns: tuple[int, ...], exact_every: int = EXACT_EVERY):
+                 tension_columns: tuple[int, ...], follows: bool,
+                 exact_every: int = EXACT_EVERY):
         init, step = _sample_fns(structure, measured, n_z, tension_columns, exact_every)
         nq, n_t, n_m = structure.nq, structure.n_tendons, len(measured)
         n_x = nq + n_z
         self.sizes = (n_t, n_m, n_t, n_t, 1, 1, 1, n_x)
         self.n_x, self.n_t, self.nq = n_x, n_t, nq
+        slots = 2 ** min(n_t, ENDS_KEPT) if follows else 1
         tcols = np.array(tension_columns, int)
 
         def parts(reading, loads):
@@ -531,36 +566,54 @@ class Live:
             return (Drive(T, *loads, targets), given, stuck > 0, length[0], tension[0],
                     restart[0] > 0, x0)
 
+        def carry_at(x0, d, unknowns, values):
+            return init(x0, d, {"friction": values.friction}, unknowns, values)
+
         def fresh(x0, d, unknowns, values):
-            carry = init(x0, d, {"friction": values.friction}, unknowns, values)
-            n = 2 ** min(n_t, ENDS_KEPT)
-            slots = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (n, *a.shape)),
-                                           carry)
+            carry = carry_at(x0, d, unknowns, values)
+            kept = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (slots, *a.shape)),
+                                          carry._replace(scaling=None))
             nan = jnp.full(n_t, jnp.nan)
             return carry, Band(nan, jnp.zeros(n_t), jnp.zeros(n_t)), Ends(
-                slots, jnp.zeros(n, bool), jnp.zeros(n_t, bool))
+                kept, jnp.zeros(slots, bool), jnp.zeros(n_t, bool))
+
+        def unravel(state, x0, d, unknowns, values):
+            shapes = jax.eval_shape(fresh, x0, d, unknowns, values)
+            return ravel_pytree(jax.tree_util.tree_map(
+                lambda a: jnp.zeros(a.shape, a.dtype), shapes))[1](state)
 
         def start(x0, reading, loads, unknowns, values):
             return ravel_pytree(fresh(x0, parts(reading, loads)[0], unknowns, values))[0]
 
         def sample(state, reading, loads, unknowns, values):
             d, given, stuck, length, tension, restart, x0 = parts(reading, loads)
-            shapes = jax.eval_shape(fresh, x0, d, unknowns, values)
-            carry, band, ends = ravel_pytree(jax.tree_util.tree_map(
-                lambda a: jnp.zeros(a.shape, a.dtype), shapes))[1](state)
-            carry = jax.lax.cond(restart, lambda: init(x0, d, {"friction": values.friction},
-                                                       unknowns, values), lambda: carry)
-            carry, row, s, band, code, ends, z = _followed(
-                structure, step, carry, band, d, given, unknowns, values, False, ends, stuck,
-                tension)
+            carry, band, ends = unravel(state, x0, d, unknowns, values)
+            carry = jax.lax.cond(restart, lambda: carry_at(x0, d, unknowns, values),
+                                 lambda: carry)
+            out = _followed(structure, step, carry, band, d, given, unknowns, values, False,
+                            ends, stuck, tension)
+            row = out.row
             sigma = noise_band(jnp, row.dx_dm[nq:], n_m, d.tensions[tcols], length, tension)
-            return ravel_pytree((carry, band, ends))[0], jnp.concatenate([jnp.ravel(a).astype(
-                float) for a in (row.x, row.converged, row.iterations, row.admissible,
-                                 row.markers, sigma, s, code, z)])
+            return ravel_pytree((out.carry, out.band, out.ends))[0], jnp.concatenate(
+                [jnp.ravel(a).astype(float) for a in (
+                    row.x, row.converged, row.iterations, row.admissible, row.markers, sigma,
+                    out.state, out.code, out.z)])
 
-        key = (structure, measured, n_z, tension_columns, exact_every)
+        def put(state, x0, reading, loads, unknowns, values, slot):
+            d = parts(reading, loads)[0]
+            carry, band, ends = unravel(state, x0, d, unknowns, values)
+            fine = admissible(values, x0[:nq])
+            new = carry_at(x0, d, unknowns, values)._replace(scaling=None)
+            ends = ends._replace(
+                carry=jax.tree_util.tree_map(lambda a, b: a.at[slot].set(b), ends.carry, new),
+                ok=ends.ok.at[slot].set(fine))
+            return ravel_pytree((carry, band, ends))[0], fine
+
+        key = (structure, measured, n_z, tension_columns, follows, exact_every)
         self.start = Program(start, "live_start", key)
         self.sample = Program(sample, "live_sample", key)
+        self.put = Program(put, "live_put", key)
+        self.slots = slots
 
     def reading(self, tensions, targets, given, stuck, noise: Noise, restart=None
                 ) -> np.ndarray:
@@ -569,25 +622,22 @@ class Live:
         return np.concatenate([tensions, targets, given, stuck, (noise.length, noise.tension,
                                                                   restart is not None), x0])
 
-    def unpack(self, flat: np.ndarray, n_markers: int) -> tuple:
-        """``(x, converged, iterations, admissible, markers (n_markers, 3), σ (n_z,), state
-        (n_t,), directions (n_t,: +1 in, −1 out, 0 stuck), z at each end of the band (2**n_t,
-        n_z; NaN where not converged or not an end))`` from :meth:`sample`'s packed vector
-        (numpy)."""
+    def unpack(self, flat: np.ndarray, n_markers: int) -> LiveRow:
+        """:meth:`sample`'s packed vector (numpy), in the order it is packed."""
         n_x, n_t, n_z = self.n_x, self.n_t, self.n_x - self.nq
-        m = n_x + 3 + 3 * n_markers
-        e = m + n_z + 2 * n_t
-        return (flat[:n_x], bool(flat[n_x]), int(flat[n_x + 1]), bool(flat[n_x + 2]),
-                flat[n_x + 3:m].reshape(n_markers, 3), flat[m:m + n_z],
-                flat[m + n_z:m + n_z + n_t], flat[m + n_z + n_t:e],
-                flat[e:].reshape(2 ** n_t, n_z))
+        ends = np.cumsum((n_x, 1, 1, 1, 3 * n_markers, n_z, n_t, n_t)).tolist()
+        x, conv, its, fine, markers, sigma, state, code = (
+            flat[a:b] for a, b in zip([0] + ends, ends))
+        return LiveRow(x, bool(conv[0]), int(its[0]), bool(fine[0]), markers.reshape(-1, 3),
+                       sigma, state, code, flat[ends[-1]:].reshape(2 ** n_t, n_z))
 
 
 @lru_cache(maxsize=CACHE_SIZE)
 def live(structure: Structure, measured: tuple[int, ...], n_z: int,
-         tension_columns: tuple[int, ...], exact_every: int = EXACT_EVERY) -> Live:
+         tension_columns: tuple[int, ...], follows: bool,
+         exact_every: int = EXACT_EVERY) -> Live:
     """The :class:`Live` programs of a problem (one per robot structure and problem shape)."""
-    return Live(structure, measured, n_z, tension_columns, exact_every)
+    return Live(structure, measured, n_z, tension_columns, follows, exact_every)
 
 
 def stacked_drives(prob: Problem, tensions: np.ndarray, targets: np.ndarray) -> Drive:

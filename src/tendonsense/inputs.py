@@ -242,9 +242,10 @@ def many_readings(robot: Robot, displacements: Sequence[Mapping[str, float]],
             raise ValueError
         return a.reshape(n, len(names))
 
+    known = set(names)
     try:
         T, y = table(tensions), table(displacements)
-        keys_ok = np.array([set(d) <= set(names) and set(t) <= set(names)
+        keys_ok = np.array([known.issuperset(d) and known.issuperset(t)
                             and all(name in d for name in measured) and all(name in t for name in d)
                             for d, t in zip(displacements, tensions)], bool).reshape(n)
     except (AttributeError, TypeError, ValueError):  # not mappings of numbers: one by one

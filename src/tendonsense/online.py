@@ -54,11 +54,14 @@ class OnlineEstimator:
     sample to sample; a sample that loses it (no convergence, or X outside its range) gets a
     new search when the time left allows one, or after five failures in a row.
 
-    Friction follows each tendon's history (:class:`~tendonsense.sliding.FrictionHistory`,
-    the turning angles of the sample's own estimated shape; forces at known points): a
-    tendon whose tension falls sticks, then is paid out; a stuck sample also gets the range of
-    its magnitudes over the friction band (``magnitude_range``), each end followed from its
-    last estimate like the sample itself. ``update(..., sliding={"t1": "out"})`` overrides it.
+    Friction follows each tendon's history (the play operator of :mod:`tendonsense.sliding`,
+    at the turning angles of the sample's own estimated shape, as a file log's; forces at
+    known points): a tendon whose tension falls sticks, then is paid out; a stuck sample also
+    gets the range of its magnitudes over the friction band (``magnitude_range``), each end
+    followed from its last estimate like the sample itself, all in one compiled call
+    (:class:`~tendonsense.fastpath.Live`). Each estimate carries every tendon's
+    ``friction_state`` and direction (``sliding``). ``update(..., sliding={"t1": "out"})``
+    overrides it.
 
     With ``dynamic=True`` each sample needs its ``time`` (s) and is estimated with the damped
     model (:class:`~tendonsense.filtering.MotionFilter`, ``walk`` its unknowns' random walk per
@@ -77,7 +80,10 @@ class OnlineEstimator:
         model = prob.model
         n_t = model.n_tendons
         self._square = len(prob.measured) == prob.n_z
-        self._live = live(model.structure, prob.measured, prob.n_z, tuple(range(n_t)))
+        self._follows = bool(np.any(np.asarray(model.values.friction) > 0)) and not (
+            dynamic or prob.located)
+        self._live = live(model.structure, prob.measured, prob.n_z, tuple(range(n_t)),
+                          self._follows)
         # on the device once: a numpy leaf would be copied in at every call
         self._values, self._unknowns = jax.device_put((model.values, prob.unknowns))
         self._state = None  # the carry, the friction history and the band's ends (Live)
@@ -86,8 +92,6 @@ class OnlineEstimator:
         self._search_cost = None  # s per search over X, measured
         self._failures = 0  # samples failed in a row
         self._refer(prob)
-        self._follows = bool(np.any(np.asarray(model.values.friction) > 0)) and not (
-            dynamic or prob.located)
         self._pulled_in = np.ones(n_t)  # without a history, every tendon pulled in
         self._unstuck = np.zeros(n_t)
 
@@ -128,11 +132,10 @@ class OnlineEstimator:
         given, stuck = self._pulled_in, self._unstuck
         try:
             T, y = prob.readings(displacements, tensions)
+            said = check_sliding(prob.robot, sliding, default="").values() if sliding else ()
             if self._follows:  # the history decides (NaN) where the reading does not say
-                given = np.full(T.size, np.nan)
-                if sliding:
-                    said = check_sliding(prob.robot, sliding, default="").values()
-                    given = np.array([GIVEN[d] for d in said])
+                given = np.array([GIVEN[d] for d in said]) if said else np.full(T.size, np.nan)
+                if said:
                     stuck = np.array([d == "stuck" for d in said], float)
         except ValueError as exc:
             return self._failed(f"bad value: {exc}")
@@ -156,8 +159,8 @@ class OnlineEstimator:
         est, row = self._solve(T, targets, said)
         if est is not None:
             return est
-        x, converged, iterations, admissible, state = row
-        note = (INADMISSIBLE if not admissible else self._outside(x) if converged
+        iterations = row.iterations
+        note = (INADMISSIBLE if not row.admissible else self._outside(row.x) if row.converged
                 else "did not converge within the work budget")
         self._failures += 1
         left = self.time_limit - (_clock() - start)
@@ -185,7 +188,7 @@ class OnlineEstimator:
         sample again from its solution in one call (which also gives the sensitivities and
         the band's ends): the estimate, or a failed sample."""
         prob = self.problem
-        values = self._signed(None if row is None else row[-1])
+        values = self._signed(None if row is None else row.state)
         t0 = _clock()
         drive = self._ref.drive(T, targets)
         x, converged, evaluations = self._rescue(drive, displacements, tensions, budget,
@@ -202,39 +205,45 @@ class OnlineEstimator:
             self._eval_cost = self._time_evaluation(drive, displacements, tensions, values)
         est, row2 = self._solve(T, targets, said, x, iterations + evaluations)
         if est is None:
-            return self._failed(INADMISSIBLE if not row2[3] else note, row2)
+            return self._failed(INADMISSIBLE if not row2.admissible else note, row2)
         return est
 
     def _solve(self, T, targets, said, restart=None, iterations=0):
         """The sample from the state's carry (or from ``restart``, a solution) in one
         compiled call (:class:`~tendonsense.fastpath.Live`): ``(estimate, row)``, the
         estimate None (and the state as it was) if it did not converge or left a located
-        force's range; ``row``: (x, converged, iterations, admissible, friction state)."""
+        force's range (:class:`~tendonsense.fastpath.LiveRow`, its iterations counted from
+        ``iterations``)."""
         prob = self.problem
-        state, flat = self._live.sample(self._state, self._reading(T, targets, said, restart),
-                                        self._loads, self._unknowns, self._values)
-        x, converged, its, admissible, markers, sigma, s, code, z = self._live.unpack(
-            np.asarray(flat), len(prob.robot.markers))
-        row = (x, converged, iterations + its, admissible, s)
-        if not converged or self._outside(x):
+        reading = self._reading(T, targets, said, restart)
+        state, flat = self._live.sample(self._state, reading, self._loads, self._unknowns,
+                                        self._values)
+        row = self._live.unpack(np.asarray(flat), len(prob.robot.markers))
+        row = row._replace(iterations=iterations + row.iterations)
+        x = row.x
+        if not row.converged or self._outside(x):
             return None, row
         self._state, self._x, self._failures = state, x, 0
         nq, n = prob.model.nq, prob.n_magnitudes
-        est = SampleEstimate(x[nq:nq + n], sigma[:n], dict(zip(prob.robot.marker_names, markers)),
-                             True, iterations + its, x, "", self._ref.locations(x), sigma[n:])
+        est = SampleEstimate(x[nq:nq + n], row.sigma[:n],
+                             dict(zip(prob.robot.marker_names, row.markers)), True,
+                             row.iterations, x, "", self._ref.locations(x), row.sigma[n:])
         if not self._follows:
             return est, row
-        est = replace(est, friction_state=s, sliding=tuple(map(DIRECTION.get, code.tolist())))
-        stuck = np.flatnonzero(code == 0)
+        est = replace(est, friction_state=row.state,
+                      sliding=tuple(map(DIRECTION.get, row.code.tolist())))
+        stuck = np.flatnonzero(row.code == 0)
         if stuck.size:
-            ends = self._ends_of(z[:2**stuck.size, :n], s, stuck, self._ref.drive(T, targets))
+            ends = self._ends_of(row.z[:2**stuck.size, :n], row.state, stuck, reading,
+                                 self._ref.drive(T, targets))
             est = replace(est, magnitude_range=band_range(est.magnitudes, ends))
         return est, row
 
-    def _ends_of(self, z, state, stuck, drive) -> np.ndarray:
+    def _ends_of(self, z, state, stuck, reading, drive) -> np.ndarray:
         """The magnitudes at the ends of the band (``z`` from the call, NaN where an end was
         not found), those not found solved from the straight rod with a fixed
-        ``rescue_budget`` if there is one."""
+        ``rescue_budget`` if there is one: an admissible solution is kept in the end's slot,
+        for the next stuck sample to follow (eq. 10 with each stuck tendon's μφ at ±1)."""
         if not self.rescue_budget or not np.isnan(z).any():
             return z
         z = z.copy()
@@ -243,6 +252,9 @@ class OnlineEstimator:
                 s = state.copy()
                 s[stuck] = signs
                 x, ok, _ = self._rescue(drive, None, None, self.rescue_budget, self._signed(s))
+                if ok and j < self._live.slots:
+                    self._state, ok = self._live.put(self._state, x, reading, self._loads,
+                                                     self._unknowns, self._values, j)
                 if ok:
                     z[j] = x[self.problem.model.nq:][:z.shape[1]]
         return z
@@ -292,4 +304,4 @@ class OnlineEstimator:
     def _failed(self, note: str, row=None) -> SampleEstimate:
         if row is None:
             return SampleEstimate.failed(self.problem, note)
-        return SampleEstimate.failed(self.problem, note, row[0], int(row[2]))
+        return SampleEstimate.failed(self.problem, note, row.x, row.iterations)

@@ -105,7 +105,7 @@ class SampleEstimate:
     locations: np.ndarray = field(default_factory=lambda: np.zeros(0))  # located forces' X, m
     location_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
     friction_state: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per tendon, ±1
-    sliding: tuple[str, ...] = ()  # per tendon: in, out or stuck; empty: every one pulled in
+    sliding: tuple[str, ...] = ()  # per tendon: in, out or stuck; empty: not followed (in)
     magnitude_range: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # if stuck
 
     __repr__ = compact_repr

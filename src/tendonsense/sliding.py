@@ -45,13 +45,14 @@ DIRECTION = {1.0: "in", -1.0: "out", 0.0: "stuck"}
 NOISE_REACH = 3.0
 
 
-def reach(mu, phi, tension_noise: float) -> np.ndarray:
+def reach(mu, phi, tension_noise: float, xp=np) -> np.ndarray:
     """How far into its band, in units of the state, read-out noise of relative standard
     deviation ``tension_noise`` can take a tendon of friction ``mu`` turning by ``phi``:
     ``NOISE_REACH σ / (μφ)`` (0 without a band: the state is then ±1). A state that close to
-    ±1 is labelled by the edge (in or out, :func:`labels`), not stuck."""
-    band = np.asarray(mu, float) * np.asarray(phi, float)
-    return np.where(band > 0, NOISE_REACH * tension_noise / np.where(band > 0, band, 1.0), 0.0)
+    ±1 is labelled by the edge (in or out, :func:`labels`), not stuck. ``xp``: numpy, or
+    jax.numpy in a compiled program."""
+    band = xp.asarray(mu, float) * xp.asarray(phi, float)
+    return xp.where(band > 0, NOISE_REACH * tension_noise / xp.where(band > 0, band, 1.0), 0.0)
 
 
 def labels(states, mu, phi, tension_noise: float, stuck_given):
@@ -216,9 +217,10 @@ def play(band: Band, mu, tensions, phi, given):
 
 def pulled(band: Band, tensions, given):
     """:meth:`FrictionHistory.pulled` in JAX: whether every tendon stays pulled in whatever
-    its band, and the band after the reading if so."""
+    its band (or the reading sets every one pulled in), and the band after the reading if
+    so."""
     live = tensions > 0
     p = jnp.log(jnp.where(live, tensions, 1.0))
-    keeps = jnp.all(jnp.isnan(given) | (given == 1.0)) & ~jnp.any(
+    keeps = jnp.all(given == 1.0) | jnp.all(jnp.isnan(given) | (given == 1.0)) & ~jnp.any(
         live & ((band.s < 1) | (p < band.p)))
     return keeps, Band(jnp.where(live, 1.0, jnp.nan), p, band.phi)
