@@ -218,7 +218,8 @@ def _analysis(sub, name, summary, description, robot_default):
                    help="the folder for the table (CSV and JSON) and the figure (PNG); made if "
                         "missing (default: tendonsense_results)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
-    p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
+    p.add_argument("--quiet", action="store_true",
+                   help="do not show a progress bar (nor say that programs are compiling)")
     return p
 
 
@@ -313,7 +314,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --dynamic: how fast the unknown forces may change, a random walk "
                         "per square root of a second (default 0.12): larger follows a change "
                         "sooner, smaller averages the noise longer")
-    p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
+    p.add_argument("--quiet", action="store_true",
+                   help="do not show a progress bar (nor say that programs are compiling)")
     p.add_argument("--cpu", type=_core, default=None, metavar="CORE",
                    help="with --readings -: keep the process on this core, so that every row "
                         "is answered in its usual time (beside a robot; XLA's threads then "
@@ -466,7 +468,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--task-size", type=int, metavar="N",
                    help="with --workers or --scheduler: sets per task (default 1000)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
-    p.add_argument("--quiet", action="store_true", help="do not show a progress bar")
+    p.add_argument("--quiet", action="store_true",
+                   help="do not show a progress bar (nor say that programs are compiling)")
 
     p = command("experiments", "re-run the paper's experiments (its Tables II to IV)",
                 "Estimate every row of the paper's experiments and compare with the applied "

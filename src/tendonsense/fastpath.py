@@ -380,12 +380,12 @@ def _followed(structure: Structure, step, carry, band, d, given, unknowns, value
     one loop (one copy of ``step`` in the program).
 
     With ``ends``, the same loop then solves every end of the stuck tendons' band (each stuck
-    tendon pulled in or paid out, the others at their state), each from its slot (or the
-    sample's own carry: the slots are for one set of stuck tendons), and also returns each
-    tendon's direction (+1 in, −1 out, 0 stuck: a state farther from ±1 than the tension
-    noise reaches, as :func:`~tendonsense.sliding.labels`, or ``stuck_given``), the ends after
-    the sample (as they were if it failed) and the unknowns z at each end (NaN where not
-    converged or not an end)."""
+    tendon pulled in or paid out: eq. 10's exponent at ∓μφ; the others at their state), each
+    from its slot (or the sample's own carry: the slots are for one set of stuck tendons),
+    and also returns each tendon's direction (+1 in, −1 out, 0 stuck: a state farther from
+    ±1 than the tension noise reaches, as :func:`~tendonsense.sliding.labels`, or
+    ``stuck_given``), the ends after the sample (as they were if none was solved) and the
+    unknowns z at each end (NaN where not converged or not an end)."""
     nq = structure.nq
     mu = values.friction
     keeps, after_pull = pulled(band, d.tensions, given)
