@@ -369,7 +369,7 @@ class Followed(NamedTuple):
     state: jax.Array  # (n_t,) the friction state it was solved with
     band: Band  # the history after it (as it was if it failed)
     code: jax.Array | None = None  # (n_t,) each tendon's direction: +1 in, −1 out, 0 stuck
-    ends: "Ends | None" = None  # the band's ends for the next sample
+    ends: Ends | None = None  # the band's ends for the next sample
     z: jax.Array | None = None  # (2**n_t, n_z) the unknowns at each end (NaN: none)
 
 

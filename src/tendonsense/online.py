@@ -198,12 +198,14 @@ class OnlineEstimator:
         if not converged:
             return self._failed(note, row)
         drive = self._ref.drive(T, targets)  # (located: at the X found)
-        if self._state is None:
+        restart = x
+        if self._state is None:  # a state whose carry is at x already
             self._state = self._live.start(x, self._reading(T, targets, said), self._loads,
                                            self._unknowns, self._values)
+            restart = None
         if self._eval_cost is None and not prob.located:  # (located: timed by its search)
             self._eval_cost = self._time_evaluation(drive, displacements, tensions, values)
-        est, row2 = self._solve(T, targets, said, x, iterations + evaluations)
+        est, row2 = self._solve(T, targets, said, restart, iterations + evaluations)
         if est is None:
             return self._failed(INADMISSIBLE if not row2.admissible else note, row2)
         return est
