@@ -56,7 +56,12 @@ def stick_slip_truth(robot, tensions, X):
         else:
             mesh = np.linspace(0.0, 1.0, 41)  # the last solution as the start, on a fixed mesh
             bvp.solution = SimpleNamespace(x=mesh, y=prev.solution.sol(mesh))
-            bvp._solve((1.0,), 11, 1e-7, warm=True)
+            try:  # a mesh that must grow past 1,000 nodes: no solution near the last one
+                bvp._solve((1.0,), 11, 1e-7, warm=True, max_nodes=1000)
+            except RuntimeError:  # (a tendon slips far at once): in load steps, coarse each
+                bvp = CosseratBVP(robot, (t, 0.0, 0.0), [(X, (0.0, 0.0, -WEIGHT))],
+                                  held=held)
+                bvp.solve(remesh=41)
         held, prev = {0: bvp.segment_tensions()[0]}, bvp
         out.append(bvp.tendon_length_changes()["t1"])
     return np.array(out)

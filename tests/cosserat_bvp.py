@@ -253,7 +253,7 @@ class CosseratBVP:
         d = t.offset(X, self.L)
         return np.array([p + R @ d[i] for i, (p, R) in enumerate(map(self.frame, X))])
 
-    def _solve(self, steps, nodes, tol, warm=False):
+    def _solve(self, steps, nodes, tol, warm=False, max_nodes=20000):
         s = np.linspace(0.0, 1.0, nodes)
         y = np.zeros((13 * self.nseg, s.size))
         q0 = rot_to_quat(self.R0)
@@ -269,7 +269,7 @@ class CosseratBVP:
                 s = np.linspace(0.0, 1.0, self.remesh)
                 y = sol.sol(s)
             sol = solve_bvp(lambda s, y: self.ode(s, y, lam), lambda a, b: self.bc(a, b, lam),
-                            s, y, tol=tol, max_nodes=20000)
+                            s, y, tol=tol, max_nodes=max_nodes)
             if sol.status != 0:
                 raise RuntimeError(f"reference BVP failed at load factor {lam}: {sol.message}")
             s, y = sol.x, sol.y
