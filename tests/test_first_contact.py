@@ -714,6 +714,32 @@ def test_time_stamps_in_milliseconds_are_caught(prototype, tmp_path):
     assert p.returncode == 0 and "its second row is at 500 s, after --duration" in p.stderr
 
 
+def test_a_motion_out_of_time_order_is_refused(prototype, tmp_path):
+    """Rows in reverse order, or a stamp twice, are refused for a motion (--dynamic, a damping
+    fit) up front, in one line naming the row, on the command line and in Python."""
+    from tendonsense.identification import identify_damping
+    from tendonsense.logs import estimate_readings
+    from tendonsense.readings import read_readings
+    for name, times, row in (("backwards", [0.04, 0.03, 0.02, 0.01], 2),
+                             ("twice", [0, 0.01, 0.01, 0.02], 3)):
+        log = tmp_path / f"{name}.csv"
+        log.write_text("time,tension_t1,tension_t2,tension_t3,displacement_t1\n"
+                       + "".join(f"{t},2,0,0,-0.003\n" for t in times))
+        for args in (["estimate", PROTOTYPE, "--readings", log, "--unknown", "0.25,0,0,-1",
+                      "--dynamic", "-o", tmp_path / "e.csv"],
+                     ["identify", PROTOTYPE, "--readings", log, "-o", tmp_path / "f.toml"]):
+            p = cli(*args)
+            assert p.returncode == 1 and f"row {row}: time" in p.stderr, p.stderr
+            assert "in time order" in p.stderr and len(p.stderr.strip().splitlines()) == 1
+        measured, samples = read_readings(log, prototype)
+        with pytest.raises(ValueError, match="in time order"):
+            identify_damping(prototype, samples)
+        with pytest.raises(ValueError, match="in time order"):
+            estimate_readings(prototype, measured, samples,
+                              [PointForceUnknown(0.25, (0, 0, -1))], dynamic=True)
+    assert not (tmp_path / "e.csv").exists() and not (tmp_path / "f.toml").exists()
+
+
 def test_a_column_twice_is_named_and_a_schedule_has_a_value_per_time(prototype, tmp_path):
     from tendonsense.readings import read_parameter_sets, read_snapshots, read_tension_schedule
     for read, header in ((read_tension_schedule, "time,tension_t1,tension_t1"),

@@ -675,7 +675,7 @@ def _check_identify(args, robot):
         if not has_time(args.readings):
             raise ValueError(f"{args.readings}: no time column: the damping is fitted to a "
                              f"motion over time")
-        if error := motion_step_error(args.readings, args.log[1]):
+        if error := motion_step_error(args.readings, args.log[1], static=""):
             raise ValueError(error)
     else:  # a modulus being fitted bounds no tension (the file's is a guess)
         fitted = args.param or inputs.DEFAULT_PARAMETERS

@@ -243,15 +243,23 @@ def _check_units(path, columns: Columns, robot: Robot, rows):
 MAX_MOTION_STEP = 1.0
 
 
-def motion_step_error(source, samples: Sequence[Sample]) -> str | None:
-    """Why the time stamps of ``samples`` cannot be those of a motion, or None: their rows
-    are more than :data:`MAX_MOTION_STEP` apart (the median)."""
-    t = np.array([s.time for s in samples if s.time is not None and not s.error], float)
+def motion_step_error(source, samples: Sequence[Sample],
+                      static: str = " (a static log is estimated without --dynamic)"
+                      ) -> str | None:
+    """Why the time stamps of ``samples`` cannot be those of a motion, or None: a row whose
+    stamp is not after the row before's, or rows more than :data:`MAX_MOTION_STEP` apart (the
+    median); ``static`` says what to do with a log that is no motion."""
+    rows = [s for s in samples if s.time is not None and not s.error]
+    t = np.array([s.time for s in rows], float)
+    if np.any(np.diff(t) <= 0):
+        k = int(np.argmax(np.diff(t) <= 0)) + 1
+        return (f"{source}: row {rows[k].row}: time {t[k]:g} s does not follow the row before "
+                f"({t[k - 1]:g} s): a motion's rows must be in time order, each stamp once")
     step = float(np.median(np.diff(t))) if t.size > 1 else 0.0
     if step > MAX_MOTION_STEP:
         return (f"{source}: rows {step:g} s apart (the median): a rod settles within a second, "
-                f"so the time stamps are not seconds (milliseconds?) or the log is not a motion "
-                f"(a static log is estimated without --dynamic)")
+                f"so the time stamps are not seconds (milliseconds?) or the log is not a "
+                f"motion{static}")
     return None
 
 
