@@ -80,6 +80,25 @@ def test_cli_streams_stdin_to_stdout(readings):
             assert float(r["magnitude_1"]) == pytest.approx(F[k], rel=1e-6)
 
 
+def test_cli_stream_stops_on_a_column_in_the_wrong_unit(readings, tmp_path):
+    """A stream whose lengths are in mm (the readings' × 1000) stops after its first rows say
+    so, as a file is refused: one line, exit 1, no output file (before, each row was skipped
+    in a line of its own and the rows that passed were estimated as metres, some "converged");
+    skipped rows are named up to 20, the rest counted, as a file's."""
+    F, T, y = readings
+    header = "time,tension_t1,tension_t2,tension_t3,displacement_t1\n"
+    mm = header + "".join(f"{0.01 * k},{T[k]},0,0,{1000 * y[k]}\n" for k in range(len(F)))
+    p = stream(["--unknown", "0.25,0,0,-1", "-o", tmp_path / "o.csv"], mm)
+    assert p.returncode == 1 and "lengths are in metres" in p.stderr, p.stderr
+    assert "its first 3 rows" in p.stderr and len(p.stderr.strip().splitlines()) <= 4
+    assert not (tmp_path / "o.csv").exists()
+    bad = header + "".join(f"{0.01 * k},{T[0]},0,0,oops\n" for k in range(25))
+    p = stream(["--unknown", "0.25,0,0,-1"], bad + f"0.25,{T[0]},0,0,{y[0]}\n")
+    lines = p.stderr.strip().splitlines()
+    assert sum("skipped: " in line for line in lines) == 20, p.stderr
+    assert "5 more rows skipped" in p.stderr and p.returncode == 3
+
+
 def test_cli_stream_flushes_each_row_before_the_next_arrives(readings):
     """Each answer is on stdout while the input is still open."""
     F, T, y = readings

@@ -1206,13 +1206,13 @@ def _log(args, robot) -> bool:
         for first, estimates in estimate_chunks(robot, measured, samples, unknowns, forces,
                                                 noise, args.dynamic, _walk(args)):
             for s, r in zip(samples[first:], estimates):
-                if r is None and shown < rd.SKIPPED_SHOWN:  # the rest counted at the end
+                if s.error and shown < rd.SKIPPED_SHOWN:  # the rest counted at the end
                     shown += 1
                     print(f"tendonsense: {args.readings}: row {s.row} skipped: {s.error}",
                           file=sys.stderr)
                 writer.writerow(rd.output_row(robot, s, r, len(unknowns), with_shape, where,
                                               follow))
-                good += bool(r is not None and r.converged)
+                good += r.converged
             out.flush()
             prog(first + len(estimates), len(samples))
         if to_file:
@@ -1298,15 +1298,16 @@ def _walk(args) -> float:
 def _stream(args, robot, noise) -> bool:
     """Output rows on stdout as they are estimated (or into ESTIMATES.csv, atomically at the
     end); an interrupt ends cleanly, every row read so far answered."""
+    from . import readings as rd
     from .logs import stream_readings
-    from .readings import AtomicText
 
     source = "<stdin>" if args.readings == "-" else args.readings
     count = dict(rows=0, converged=0, skipped=0)  # as rows are answered: an interrupt keeps it
 
-    def skipped(s):
+    def skipped(s):  # the first rows named, the rest counted at the end (as a file's)
         count["skipped"] += 1
-        print(f"tendonsense: {source}: row {s.row} skipped: {s.error}", file=sys.stderr)
+        if count["skipped"] <= rd.SKIPPED_SHOWN:
+            print(f"tendonsense: {source}: row {s.row} skipped: {s.error}", file=sys.stderr)
 
     def answered(s, r):
         count["rows"] += 1
@@ -1325,29 +1326,33 @@ def _stream(args, robot, noise) -> bool:
         if replay:
             lines = _paced(fh, viewer)
     to_file = args.estimates not in (None, "-")
-    out = AtomicText(args.estimates) if to_file else sys.stdout
+    out = rd.AtomicText(args.estimates) if to_file else sys.stdout
+    done = False  # the input ended or was interrupted (else an error: nothing written)
     try:
         with fh:
             stream_readings(robot, lines, out, args.unknown, forces, noise, source, skipped,
                             answered, args.dynamic, _walk(args))
         if not count["rows"]:
             raise ReadingsError(f"{source}: no data rows below the header")
+        done = True
         if viewer is not None and args.readings != "-":
             print("tendonsense: the log is done; the view stays until Ctrl-C", file=sys.stderr)
             while True:
                 time.sleep(0.5)
     except KeyboardInterrupt:  # the rows answered so far stand
-        pass
+        done = True
     except BrokenPipeError:  # the reader went away: stop quietly
+        done = True
         sys.stderr.close()
         return True
     finally:
         if viewer is not None:
             viewer.close()
         if to_file:
-            if count["rows"]:
+            if done and count["rows"]:
                 out.commit()
             out.close()
+    _more_skipped(source, count["skipped"] - rd.SKIPPED_SHOWN)
     if to_file:
         if not count["rows"]:
             print(f"tendonsense: {source}: no row answered; nothing written", file=sys.stderr)

@@ -19,25 +19,29 @@ import numpy as np
 from .estimation import Noise, Unknown, problem
 from .inputs import WALK, check_unknowns
 from .online import OnlineEstimator
-from .readings import (SKIPPED_SHOWN, LogSummary, ReadingsError, Sample, has_time, located,
-                       motion_step_error, output_header, output_row, output_rows, parse_header,
-                       parse_row, read_readings, with_sliding, write_csv_atomic)
+from .readings import (SKIPPED_SHOWN, LogSummary, ReadingsError, Sample, check_units,
+                       has_time, located, motion_step_error, output_header, output_row,
+                       output_rows, parse_header, parse_row, read_readings, with_sliding,
+                       write_csv_atomic)
 from .robot import Robot
 from .sliding import GIVEN, FrictionHistory, band_range
 from .tracking import SampleEstimate, series_chunks
 
 #: samples per compiled scan of a file log
 CHUNK = 100
+#: a stream's first rows that decide whether a column is in the wrong unit
+UNIT_ROWS = 50
 
 
 def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sample],
                     unknowns: Sequence[Unknown], point_forces=(), noise: Noise = Noise(),
                     dynamic: bool = False, walk: float = WALK
-                    ) -> Iterator[tuple[int, list[SampleEstimate | None]]]:
+                    ) -> Iterator[tuple[int, list[SampleEstimate]]]:
     """Estimate every good sample of a log in order, each warm-started from the last good one
     (:func:`~tendonsense.tracking.series_chunks`); yields ``(first, estimates)`` as chunks
     finish (with the friction history, each once its stuck rows have their range, while the
-    next chunk is scanned), None for a bad sample. ``dynamic``: over the samples' time stamps
+    next chunk is scanned); a sample the reader skipped is an estimate that did not converge,
+    its note ``skipped: <why>``. ``dynamic``: over the samples' time stamps
     with the damped model (:class:`~tendonsense.filtering.MotionFilter`)."""
     prob = problem(robot, measured, unknowns, point_forces)
     if dynamic:
@@ -45,12 +49,12 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
             raise ValueError(error)
         online = OnlineEstimator(prob, noise, dynamic=True, walk=walk)
         for first in range(0, len(samples), CHUNK):
-            yield first, [None if s.error else online.update(s.displacements, s.tensions, s.time,
-                                                             s.sliding)
-                          for s in samples[first:first + CHUNK]]
+            yield first, [_skipped(prob, s) if s.error else online.update(
+                s.displacements, s.tensions, s.time, s.sliding)
+                for s in samples[first:first + CHUNK]]
         return
     good = [k for k, s in enumerate(samples) if not s.error]
-    out: list[SampleEstimate | None] = [None] * len(samples)
+    out = [_skipped(prob, s) if s.error else None for s in samples]
     done = 0
     history = FrictionHistory(prob.model.values.friction)
     follow = history.active and not prob.located
@@ -133,13 +137,20 @@ def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
     return out
 
 
+def _skipped(prob, s: Sample) -> SampleEstimate:
+    """The estimate of a sample the reader skipped."""
+    return SampleEstimate.failed(prob, f"skipped: {s.error}")
+
+
 def estimate_readings(robot: Robot, measured: Sequence[str], samples: Sequence[Sample],
                       unknowns: Sequence[Unknown], point_forces=(), noise: Noise = Noise(),
                       progress: Callable[[int, int], None] | None = None,
                       dynamic: bool = False, walk: float = WALK
-                      ) -> list[SampleEstimate | None]:
-    """:func:`estimate_chunks`, collected; ``progress(done, total)`` is called per chunk."""
-    out: list[SampleEstimate | None] = []
+                      ) -> list[SampleEstimate]:
+    """:func:`estimate_chunks`, collected (a sample the reader skipped: an estimate that did
+    not converge, its note ``skipped: <why>``); ``progress(done, total)`` is called per
+    chunk."""
+    out: list[SampleEstimate] = []
     for first, estimates in estimate_chunks(robot, measured, samples, unknowns, point_forces,
                                             noise, dynamic, walk):
         out += estimates
@@ -178,7 +189,7 @@ def estimate_file(robot: Robot, log: str | Path, out: str | Path, unknowns: Sequ
                           error=msg if msg.startswith(str(log)) else f"{log}: {msg}")
     bad = [(s.row, s.error) for s in samples if s.error]
     return LogSummary(str(log), str(out), len(samples),
-                      sum(bool(r is not None and r.converged) for r in results), len(bad),
+                      sum(r.converged for r in results), len(bad),
                       skipped_rows=tuple(bad[:SKIPPED_SHOWN]))
 
 
@@ -200,6 +211,8 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
     """Live estimation: read READINGS.csv lines from ``lines`` (an iterable of text lines) and
     write each output row to ``out`` as soon as it is estimated, flushed; then call
     ``on_sample(sample, estimate or None)`` (e.g. a :class:`~tendonsense.view.Viewer`'s push).
+    A column whose first :data:`UNIT_ROWS` rows say it is in the wrong unit (as a file's rows,
+    :func:`~tendonsense.readings.check_units`) stops the stream with a ReadingsError.
     The estimator's programs are built after the header, before the first row is read.
     Returns (rows, converged). Ends at the end of the input; the caller handles an interrupt
     (every row written so far is complete). ``dynamic``: with the damped model over the rows'
@@ -221,9 +234,13 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
     online = online_estimator(robot, columns.measured, unknowns, point_forces, noise,
                               dynamic=dynamic, walk=walk)
     rows = good = 0
+    first: list[list[str]] = []
     for i, raw in enumerate(reader, start=1):
         if not any(c.strip() for c in raw):
             continue
+        if len(first) < UNIT_ROWS:  # a column in the wrong unit stops the stream, as a file
+            first.append(raw)
+            check_units(f"{source} (its first {len(first)} rows)", columns, robot, first)
         s = parse_row(i, raw, columns, robot)
         r = None if s.error else online.update(s.displacements, s.tensions, s.time, s.sliding)
         if r is None and on_skip:

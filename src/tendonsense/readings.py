@@ -192,7 +192,7 @@ def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sampl
     if not rows:
         raise ReadingsError(f"{path}: empty file, expected a header row")
     columns = parse_header(rows[0], robot, path)
-    _check_units(path, columns, robot, rows[1:])
+    check_units(path, columns, robot, rows[1:])
     samples = [parse_row(i, raw, columns, robot) for i, raw in enumerate(rows[1:], start=1)
                if any(c.strip() for c in raw)]
     if not samples:
@@ -200,7 +200,7 @@ def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sampl
     return columns.measured, samples
 
 
-def _check_units(path, columns: Columns, robot: Robot, rows):
+def check_units(path, columns: Columns, robot: Robot, rows):
     """A length column most of whose rows change the tendon by more than its whole length, or
     a tension column most of whose rows would crush the rod, is in the wrong unit, and a
     sliding column most of whose rows are no direction is in another vocabulary: the log is
