@@ -182,6 +182,23 @@ def test_snapshots_in_millimetres_are_refused(prototype, tmp_path):
         identify(prototype, [snap], ("young_modulus",))
 
 
+def test_a_marker_noise_in_mm_and_a_parameter_twice_are_refused(prototype):
+    """identify --marker-noise 0.5 (0.5 mm meant; it fitted E = 1.07e6 ± 2.2e6 Pa with a
+    warning) and --param density twice (silently once): refused before JAX; the noise in
+    Python too."""
+    snaps = ROOT / "examples" / "tutorial" / "snapshots.csv"
+    for args, why in ((["--marker-noise", "0.5"], "--marker-noise 0.5 m is not under a tenth "
+                                                    "of the rod's length"),
+                      (["--param", "density", "--param", "density"],
+                       "parameter density given twice")):
+        rc, err, jax_loaded = refused_before_jax("identify", PROTOTYPE, "--snapshots", snaps,
+                                                 *args)
+        assert rc == 1 and why in err and not jax_loaded, err
+    snap = Snapshot(dict(t1=0.0, t2=0.0, t3=0.0), {"tip": np.array([0.24, 0.0, -0.05])})
+    with pytest.raises(ValueError, match="marker noise 0.5 m is not under a tenth"):
+        identify(prototype, [snap], ("young_modulus",), marker_noise=0.5)
+
+
 def test_a_log_row_breaking_a_rule_is_marked_and_the_rest_estimated(prototype, tmp_path):
     y = solve(prototype, {"t1": 2.0}, [(0.25, (0, 0, -0.1))]).displacements["t1"]
     log = tmp_path / "log.csv"

@@ -350,3 +350,15 @@ def test_a_robot_hashes_as_its_fields_and_is_sent_without_its_hash(prototype):
     sent = pickle.loads(pickle.dumps(prototype))
     assert "_hash" not in sent.__dict__ and sent == prototype
     assert hash(sent) == hash(prototype)
+
+
+def test_a_dangling_link_is_named(tmp_path):
+    """examples/ copied without -L leaves links to ../src/… that lead nowhere: the message
+    says so, not only "No such file or directory"."""
+    link = tmp_path / "paper_prototype.toml"
+    link.symlink_to("../src/tendonsense/data/paper_prototype.toml")
+    with pytest.raises(RobotFileError, match="a symbolic link to ../src/tendonsense/data/paper_"
+                                             "prototype.toml, which does not exist"):
+        load_robot(link)
+    with pytest.raises(RobotFileError, match=r"cannot read robot file \(No such file"):
+        load_robot(tmp_path / "missing.toml")

@@ -610,6 +610,9 @@ def _check(args, robot) -> None:
         if getattr(args, name, None) and (
                 error := inputs.length_noise_error(robot, flag, getattr(args, name))):
             raise ValueError(error)
+    if getattr(args, "marker_noise", None) and (
+            error := inputs.marker_noise_error(robot, "--marker-noise", args.marker_noise)):
+        raise ValueError(error)
     _not_an_input(args)
 
 
@@ -647,6 +650,8 @@ def _check_identify(args, robot):
     if bad:
         raise ValueError(f"--param {bad[0]}: not a parameter of this robot (one of "
                          f"{', '.join(allowed)})")
+    if twice := next((p for p in params if params.count(p) > 1), None):
+        raise ValueError(f"parameter {twice} given twice (--param)")
     if args.readings is not None:
         if list(params) != ["damping"]:
             raise UsageError("tendonsense identify: --readings fits --param damping alone (E, "
@@ -1239,7 +1244,7 @@ def _log(args, robot) -> bool:
 def _counts(samples: int, converged: int, skipped: int) -> str:
     """"N samples: C converged, F not converged, S skipped" (F only if there are any)."""
     failed = samples - converged - skipped
-    return (f"{samples} samples: {converged} converged, "
+    return (f"{samples} sample{'' if samples == 1 else 's'}: {converged} converged, "
             + (f"{failed} not converged, " if failed else "") + f"{skipped} skipped")
 
 

@@ -302,12 +302,16 @@ def _sq(r):
 
 
 def _check_noises(robot: Robot, marker_noise: float, length_noise: float) -> None:
-    """The read-out noises a fit weighs its residuals by: positive metres, and a length noise
-    a sensor of the robot's tendons can have (:func:`~tendonsense.inputs.length_noise_error`)."""
+    """The read-out noises a fit weighs its residuals by: positive metres, a length noise a
+    sensor of the robot's tendons can have and a marker noise one of its markers can have
+    (:func:`~tendonsense.inputs.length_noise_error`,
+    :func:`~tendonsense.inputs.marker_noise_error`)."""
     for noise, what in ((marker_noise, "marker noise"), (length_noise, "length noise")):
         if not (np.isfinite(noise) and noise > 0):
             raise ValueError(f"{what} must be a positive number of metres, got {noise}")
     if error := inputs.length_noise_error(robot, "length noise", length_noise):
+        raise ValueError(error)
+    if error := inputs.marker_noise_error(robot, "marker noise", marker_noise):
         raise ValueError(error)
 
 

@@ -409,6 +409,15 @@ def length_noise_error(robot: Robot, what: str, sigma: float) -> str | None:
     return None
 
 
+def marker_noise_error(robot: Robot, what: str, sigma: float) -> str | None:
+    """Why ``sigma`` (m) cannot be the standard deviation of a marker position's read-out
+    noise on ``robot``, or None: a tenth of the rod's length or more is a unit slip."""
+    if sigma >= robot.rod.length / 10:
+        return (f"{what} {sigma:g} m is not under a tenth of the rod's length "
+                f"({robot.rod.length:g} m): positions are in metres (0.5 mm = 0.0005)")
+    return None
+
+
 def check_noise(noise, robot: Robot | None = None) -> Noise:
     """``noise`` if it is a :class:`Noise` (and, with ``robot``, its length noise one a
     sensor of its tendons can have: :func:`length_noise_error`), or a ValueError saying what

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -173,7 +174,10 @@ def load_robot(path: str | Path) -> Robot:
     try:
         text = path.read_text()
     except OSError as exc:
-        raise RobotFileError(f"{path}: cannot read robot file ({exc.strerror})") from None
+        why = exc.strerror
+        if path.is_symlink() and not path.exists():  # e.g. a folder copied without -L
+            why = f"a symbolic link to {os.readlink(path)}, which does not exist"
+        raise RobotFileError(f"{path}: cannot read robot file ({why})") from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

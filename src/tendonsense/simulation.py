@@ -173,7 +173,9 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     nq = model.nq
     q = np.zeros(nq) if q0 is None else np.asarray(q0, float).reshape(nq)
     if at is None:
-        times = np.arange(1, int(np.floor(duration / output_dt + 1e-9)) + 1) * output_dt
+        # (0.35, not k × 0.01 = 0.35000000000000003, in the readings' time column)
+        times = np.round(np.arange(1, int(np.floor(duration / output_dt + 1e-9)) + 1)
+                         * output_dt, 12)
     else:
         times = np.asarray(at, float).reshape(-1)
         if (times.size == 0 or not np.all(np.isfinite(times)) or times[0] <= 0
