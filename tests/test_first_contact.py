@@ -199,6 +199,21 @@ def test_a_marker_noise_in_mm_and_a_parameter_twice_are_refused(prototype):
         identify(prototype, [snap], ("young_modulus",), marker_noise=0.5)
 
 
+def test_a_simulation_far_past_its_loads_is_refused(prototype, tmp_path):
+    """simulate --duration 3000 (3 s meant in ms) for a schedule that ends at 3 s ran 344 s
+    into 300,001 rows: refused before JAX, and in Python; 63 s is still simulated."""
+    ramp = ROOT / "examples" / "ramp_t1.csv"
+    rc, err, jax_loaded = refused_before_jax("simulate", PROTOTYPE, "--tensions", ramp,
+                                             "--duration", "3000", "-o", tmp_path / "m.csv")
+    assert rc == 1 and not jax_loaded and "durations are in seconds" in err, err
+    assert "runs 2997 s past the last change of the loads (at 3 s)" in err
+    assert not (tmp_path / "m.csv").exists()
+    with pytest.raises(ValueError, match="duration 61 s runs 61 s past"):
+        simulate(prototype, {"t1": 2.0}, duration=61.0)
+    from tendonsense.inputs import duration_error
+    assert duration_error("duration", 63.0, 3.0) is None
+
+
 def test_a_log_row_breaking_a_rule_is_marked_and_the_rest_estimated(prototype, tmp_path):
     y = solve(prototype, {"t1": 2.0}, [(0.25, (0, 0, -0.1))]).displacements["t1"]
     log = tmp_path / "log.csv"

@@ -705,6 +705,9 @@ def _check_simulate(args, robot):
               f"--duration {args.duration:g} s: only the start of its first ramp is simulated "
               f"(times are in seconds)", file=sys.stderr)
     args.schedule = {**args.tension, **schedule}
+    if error := inputs.duration_error("--duration", args.duration, max(
+            [float(t[-1]) for t, _ in schedule.values()], default=0.0)):
+        raise ValueError(error)
     for flag, v in (("--noise-length", args.noise_length), ("--noise-tension", args.noise_tension)):
         if not (0 <= v < float("inf")):
             raise ValueError(f"{flag} {v:g}: must be a finite number >= 0")

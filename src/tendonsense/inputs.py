@@ -409,6 +409,20 @@ def length_noise_error(robot: Robot, what: str, sigma: float) -> str | None:
     return None
 
 
+#: seconds a simulation may run past the last change of its loads (a rod settles within one)
+SETTLED = 60.0
+
+
+def duration_error(what: str, duration: float, last: float) -> str | None:
+    """Why a simulation cannot run ``duration`` s whose loads last change at ``last`` s, or
+    None: more than :data:`SETTLED` s past it is a unit slip (3000 for 3 s ran 344 s)."""
+    if duration > last + SETTLED:
+        return (f"{what} {duration:g} s runs {duration - last:g} s past the last change of the "
+                f"loads (at {last:g} s); a rod settles within a second of it: durations are in "
+                f"seconds (at most {last + SETTLED:g} s here)")
+    return None
+
+
 def marker_noise_error(robot: Robot, what: str, sigma: float) -> str | None:
     """Why ``sigma`` (m) cannot be the standard deviation of a marker position's read-out
     noise on ``robot``, or None: a tenth of the rod's length or more is a unit slip."""

@@ -165,6 +165,8 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     if not X:  # one zero force at the base: one program with and without point forces
         X, F_entries = [0.0], [np.zeros(3)]
     F_times, F = _table(F_entries, 3, [f"point force {i + 1}" for i in range(len(F_entries))])
+    if error := inputs.duration_error("duration", duration, max(T_times[-1], F_times[-1])):
+        raise ValueError(error)
     schedule = Schedule(T_times, T[:, :, 0], F_times, F, np.array(X, float),
                         np.asarray(robot.gravity, float),
                         np.array([STATES[d] for d in directions.values()]))
