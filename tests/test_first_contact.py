@@ -772,6 +772,20 @@ def test_a_motion_out_of_time_order_is_refused(prototype, tmp_path):
     assert not (tmp_path / "e.csv").exists() and not (tmp_path / "f.toml").exists()
 
 
+def test_many_logs_in_motion_on_a_robot_without_damping_say_so(tmp_path):
+    """--dynamic over several logs on a robot without damping notes, as over one log, that it
+    filters the quasi-static model (it said nothing)."""
+    for name in ("a", "b"):
+        (tmp_path / f"{name}.csv").write_text(
+            "time,tension_t1,tension_t2,tension_t3,displacement_t1\n"
+            + "".join(f"{10 * k},2,0,0,-0.003\n" for k in range(3)))
+    (tmp_path / "out").mkdir()
+    p = cli("estimate", PROTOTYPE, "--readings", tmp_path / "*.csv", "--unknown",
+            "0.25,0,0,-1", "--dynamic", "-o", f"{tmp_path / 'out'}/")
+    assert "has no [rod] damping: --dynamic filters the quasi-static model" in p.stderr
+    assert p.returncode == 1 and p.stderr.count("rows 10 s apart") == 2, p.stderr
+
+
 def test_a_column_twice_is_named_and_a_schedule_has_a_value_per_time(prototype, tmp_path):
     from tendonsense.readings import read_parameter_sets, read_snapshots, read_tension_schedule
     for read, header in ((read_tension_schedule, "time,tension_t1,tension_t1"),

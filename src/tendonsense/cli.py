@@ -779,6 +779,11 @@ def _check_estimate(args, robot, tensions, displacements):
                                 f"(--dynamic) needs each row's time stamp, s")
         if args.dynamic and (error := motion_step_error(args.readings, args.log[1])):
             raise ReadingsError(error)
+    _no_damping(args, robot)
+
+
+def _no_damping(args, robot):
+    """The note that --dynamic on a robot without damping filters the quasi-static model."""
     if args.dynamic and robot.rod.damping <= 0:
         print(f"tendonsense: {args.robot} has no [rod] damping: --dynamic filters the "
               f"quasi-static model", file=sys.stderr)
@@ -834,6 +839,7 @@ def _check_logs(args, robot, tensions, displacements):
     log_outputs(logs, out)
     inputs.check_unknowns(robot, robot.tendon_names, args.unknown)
     args.logs = logs
+    _no_damping(args, robot)
 
 
 def _check_cluster(args):
