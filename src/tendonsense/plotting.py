@@ -65,7 +65,7 @@ KNOWN, ESTIMATED, MEASURED, SLACK, REST = "tab:blue", "tab:green", "tab:cyan", "
 TENSION_CMAP = ListedColormap(plt.get_cmap("plasma")(np.linspace(0.0, 0.85, 256)))
 #: (title, global axes shown horizontally and vertically)
 VIEWS = (("side view (x–z)", 0, 2), ("top view (x–y)", 0, 1))
-_LABEL_BOX = dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.8)
+_LABEL_BOX = dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.55)
 
 
 Load = tuple[float, Sequence[float]]
