@@ -212,6 +212,10 @@ def test_a_simulation_far_past_its_loads_is_refused(prototype, tmp_path):
         simulate(prototype, {"t1": 2.0}, duration=61.0)
     from tendonsense.inputs import duration_error
     assert duration_error("duration", 63.0, 3.0) is None
+    sim = simulate(prototype, {"t1": 2.0}, duration=0.02)
+    for seed in (-1, 2.5, "3"):  # numpy's own message did not name the seed
+        with pytest.raises(ValueError, match="seed: a whole number >= 0 or None"):
+            sim.readings(1e-4, seed=seed)
 
 
 def test_a_log_row_breaking_a_rule_is_marked_and_the_rest_estimated(prototype, tmp_path):

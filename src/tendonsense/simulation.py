@@ -64,6 +64,8 @@ class Simulation:
             raise ValueError(error)
         if not 0 <= inputs.finite("noise_tension", noise_tension) < 1:
             raise ValueError(f"noise_tension: {inputs.FRACTION}, got {noise_tension:g}")
+        if seed is not None and not (isinstance(seed, (int, np.integer)) and seed >= 0):
+            raise ValueError(f"seed: a whole number >= 0 or None, got {seed!r}")
         rng = np.random.default_rng(seed)
         cols = {"time": self.time}
         for n, T in self.tensions.items():
