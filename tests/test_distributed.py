@@ -318,6 +318,34 @@ def _sets(path, n, seed):
 
 
 @pytest.mark.parametrize("where", ["here", "cluster"])
+def test_a_sweep_of_paid_out_tendons(where, client, prototype, tmp_path, capsys):
+    """sweep --sliding t1=out: every set solved with t1 paid out, as solve --sliding t1=out
+    (a sweep had no friction direction: a sliding_t1 column was refused, no option)."""
+    from tendonsense.forward import solve
+    E, mu, T, f = _sets(tmp_path / "sets.csv", 12, 7)
+    out = tmp_path / "results.csv"
+    extra = ["--scheduler", client.scheduler.address, "--task-size", "5"] \
+        if where == "cluster" else []
+    code = cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", out, "--json", "--quiet",
+                     "--sliding", "t1=out", *extra])
+    assert code == 0 and json.loads(capsys.readouterr().out)["converged"] == 12
+    rows = list(csv.DictReader(open(out)))
+    for k in (0, 5, 11):
+        robot = prototype.with_parameters(young_modulus=E[k], friction={"t1": mu[k]})
+        loads = [(0.25, (0, 0, -f[k]))]
+        paid = solve(robot, {"t1": T[k]}, loads, sliding={"t1": "out"})
+        assert float(rows[k]["displacement_t1"]) == pytest.approx(
+            paid.displacements["t1"], rel=1e-9)
+        pulled = solve(robot, {"t1": T[k]}, loads).displacements["t1"]
+        assert abs(float(rows[k]["displacement_t1"]) - pulled) > 1e-3
+    with pytest.raises(ValueError, match="sliding t1=stuck"):
+        solve_here(prototype, {"t1": T}, sliding={"t1": "stuck"})
+    assert cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", tmp_path / "r2.csv",
+                     "--sliding", "t1=stuck"]) == 2
+    assert not (tmp_path / "r2.csv").exists()
+
+
+@pytest.mark.parametrize("where", ["here", "cluster"])
 def test_a_sweep_writes_one_row_per_set(where, client, prototype, tmp_path, capsys):
     from tendonsense.forward import solve
     E, mu, T, f = _sets(tmp_path / "sets.csv", 300, 5)

@@ -464,6 +464,8 @@ def build_parser() -> argparse.ArgumentParser:
                    type=_numbers(4, "X,FX,FY,FZ"),
                    help="a known force (N, global) at X m from the base, the same in every "
                         "set; repeatable")
+    p.add_argument("--sliding", action="append", default=[], type=_forward_direction,
+                   metavar="NAME=in|out", help=SLIDING_HELP.format(", in every set"))
     _cluster_options(p, "the sets")
     p.add_argument("--task-size", type=int, metavar="N",
                    help="with --workers or --scheduler: sets per task (default 1000)")
@@ -547,7 +549,7 @@ def _check(args, robot) -> None:
     """Every argument against the robot, and every output path, by the rules of
     :mod:`tendonsense.inputs` (nothing computed, JAX not started)."""
     cmd = args.command
-    if cmd in ("solve", "fk", "estimate"):
+    if cmd in ("solve", "fk", "estimate", "sweep"):
         args.sliding = _once(args.sliding, "--sliding")
         inputs.sliding(robot, args.sliding)
         stuck = [n for n, d in args.sliding.items() if d == "stuck"]
@@ -559,6 +561,7 @@ def _check(args, robot) -> None:
             raise UsageError("tendonsense estimate: --sliding goes with a single reading (in "
                              "a log, a sliding_<tendon> column gives it per row; without it "
                              "the direction follows each tendon's history)")
+    if cmd in ("solve", "fk", "estimate"):
         tensions = _once(args.tension, "--tension")
         displacements = _once(getattr(args, "displacement", []), "--displacement")
         inputs.check_point_forces(robot, _point_forces(args))
@@ -1628,11 +1631,12 @@ def _sweep(args, robot) -> bool:
         try:
             if client is None:
                 from .tracking import solve_batch
-                out = solve_batch(robot, sets.tensions, forces, sets.values)
+                out = solve_batch(robot, sets.tensions, forces, sets.values,
+                                  sliding=args.sliding)
             else:
                 from .distributed import TASK_SIZE, solve_batch
                 out = solve_batch(client, robot, sets.tensions, forces, sets.values,
-                                  args.task_size or TASK_SIZE, prog)
+                                  args.task_size or TASK_SIZE, prog, sliding=args.sliding)
         finally:
             prog.close()
     write_csv_atomic(args.results, *sweep_rows(robot, sets, out))

@@ -171,18 +171,20 @@ def task_chunks(n: int, task_size: int = TASK_SIZE) -> list[np.ndarray]:
 
 
 def solve_chunk(robot: Robot, T: np.ndarray, X: np.ndarray, F: np.ndarray,
-                values: Mapping[str, np.ndarray]) -> BatchResult:
+                values: Mapping[str, np.ndarray], sliding: Mapping[str, str] | None = None
+                ) -> BatchResult:
     """One task of :func:`solve_batch`: :func:`tendonsense.tracking.solve_batch` over
-    tensions ``T`` (n, n_t), point forces at ``X`` (n, n_p) of ``F`` (n, n_p, 3) and the
-    varied ``values``, on one thread."""
+    tensions ``T`` (n, n_t), point forces at ``X`` (n, n_p) of ``F`` (n, n_p, 3), the
+    varied ``values`` and the tendons' ``sliding``, on one thread."""
     from .tracking import solve_batch as solve_local
     forces = [(X[:, i], F[:, i]) for i in range(X.shape[1])]
-    return solve_local(robot, T, forces, dict(values), workers=1)
+    return solve_local(robot, T, forces, dict(values), workers=1, sliding=sliding)
 
 
 def solve_batch(client, robot: Robot, tensions, point_forces: Sequence = (),
                 values: Mapping[str, object] | None = None, task_size: int = TASK_SIZE,
-                progress: Progress | None = None) -> BatchResult:
+                progress: Progress | None = None, sliding: Mapping[str, str] | None = None
+                ) -> BatchResult:
     """:func:`tendonsense.tracking.solve_batch` over a cluster (``client``; ``None``: this
     process): the same arguments, checked here; the batch ordered along its first principal
     direction and cut into chunks of ``task_size`` samples (:func:`task_chunks`), each chunk a
@@ -199,19 +201,20 @@ def solve_batch(client, robot: Robot, tensions, point_forces: Sequence = (),
     ...                   values={"young_modulus": E, "friction": mu})
     """
     from .forward import model_for
-    from .tracking import BatchResult, batch_inputs, principal_order
-    T, X, F, varied = batch_inputs(robot, model_for(robot).values, tensions, point_forces,
-                                   values)
+    from .tracking import BatchResult, batch_inputs, principal_order, signed_friction
+    base = model_for(robot).values
+    T, X, F, varied = batch_inputs(robot, base, tensions, point_forces, values)
     n = T.shape[0]
     if n == 0:
         raise ValueError("batch: no samples")
+    signed_friction(robot, base, varied, n, sliding)  # its rules, before anything is sent
     # neighbours along the batch's first principal direction share a task, so that each
     # warm-starts the next as in one process
     order = principal_order(np.concatenate(
         [T, X, F.reshape(n, -1), *(v.reshape(n, -1) for v in varied.values())], axis=1))
     chunks = [order[c] for c in task_chunks(n, task_size)]
-    tasks = [(robot, T[c], X[c], F[c], {k: np.ascontiguousarray(v[c]) for k, v in varied.items()})
-             for c in chunks]
+    tasks = [(robot, T[c], X[c], F[c], {k: np.ascontiguousarray(v[c]) for k, v in varied.items()},
+              dict(sliding or {})) for c in chunks]
     parts = _run(client, solve_chunk, tasks, progress)
     for part in parts:
         if isinstance(part, Exception):

@@ -15,9 +15,9 @@ import numpy as np
 from .estimation import estimate_problem
 from .fastpath import (MAX_EVALUATIONS, MAX_JACOBIANS, Carry, Track,  # noqa: F401 (API)
                        follower, stacked_drives, tracker)
-from .forward import model_for, why_not
-from .inputs import (Noise, check_noise, first_force_error, max_tension, tendon_vector,
-                     tension_error)
+from .forward import model_for, sliding_values, why_not
+from .inputs import (Noise, check_noise, first_force_error, friction_signs, max_tension,
+                     tendon_vector, tension_error)
 from .model import VALUE_NAMES
 from .online import RESCUE_BUDGET, OnlineEstimator
 from .problem import Problem, band  # noqa: F401 (API)
@@ -253,7 +253,7 @@ class BatchResult:
 
 def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
                 values: Mapping[str, object] | None = None, chunk: int = 100,
-                workers: int = 2) -> BatchResult:
+                workers: int = 2, sliding: Mapping[str, str] | None = None) -> BatchResult:
     """Forward statics over a batch of tensions, point loads and values, for sweeps and Monte
     Carlo: one compiled program per robot structure, whatever the numbers.
 
@@ -261,7 +261,9 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     ``point_forces``: [(X, f), ...] where X may be (N,) and f (N, 3). ``values``: {name: (N,)}
     for ``young_modulus``, ``poisson_ratio``, ``density``, ``friction`` ((N,) one μ for every
     tendon, or (N, n_t)), each under the robot file's rules (``ValueError`` naming the value
-    otherwise). The samples are ordered along their first principal direction and
+    otherwise). ``sliding`` ({tendon: 'in' | 'out'}, default in) as for
+    :func:`~tendonsense.forward.solve`, in every sample. The samples are ordered along their
+    first principal direction and
     solved by the compiled tracker, each warm-started from its neighbour, on ``workers``
     threads; a sample it cannot converge is solved again on its own from the straight rod
     with load continuation.
@@ -278,6 +280,7 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     n, n_t = T.shape
     if n == 0:
         raise ValueError("batch: no samples")
+    varied = signed_friction(robot, base, varied, n, sliding)
     g = np.broadcast_to(np.asarray(robot.gravity, float), (n, 3))
     unknowns = Unknowns.none(n_t, X.shape[1])
     tcols = tuple(int(j) for j in np.flatnonzero(np.any(T != 0, axis=0)))
@@ -357,6 +360,17 @@ def batch_inputs(robot: Robot, base, tensions, point_forces, values):
         if bad := first_force_error(robot, f"point force {j + 1}", X[:, j], F[:, j], E):
             raise ValueError(f"batch: sample {bad[0] + 1}: {bad[1]}")
     return T, X, F, varied
+
+
+def signed_friction(robot: Robot, base, varied: dict, n: int, sliding) -> dict:
+    """``varied`` with every sample's μ signed by its tendon's ``sliding`` direction, in or
+    out (:func:`~tendonsense.forward.sliding_values`; a stuck one is a ValueError)."""
+    if not sliding:
+        return varied
+    sliding_values(robot, base, sliding)  # its rules
+    mu = varied.get("friction", np.broadcast_to(np.asarray(base.friction, float),
+                                                (n, len(robot.tendons))))
+    return {**varied, "friction": mu * friction_signs(robot, sliding)}
 
 
 def varied_values(base, values, n: int) -> dict[str, np.ndarray]:
