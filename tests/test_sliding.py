@@ -250,23 +250,26 @@ def test_a_stuck_state_does_not_drift_with_noise():
 
 
 
-def test_history_in_numpy_and_compiled_agree_on_every_branch():
+@pytest.mark.parametrize("turns", [None, 4])
+def test_history_in_numpy_and_compiled_agree_on_every_branch(turns):
     """Three tendons (one without friction) read 400 times: tensions that rise, fall, hold
     and go slack, shapes that change or not, the log saying in, out or stuck now and then;
-    :meth:`FrictionHistory.step` (per tendon, on floats) and the compiled :func:`play` give
-    the same states."""
+    :meth:`FrictionHistory.step` (on NumPy arrays) and the compiled :func:`play` give the same
+    states, one a tendon or one at each of its turns."""
     import jax.numpy as jnp
     from tendonsense.sliding import Band, FrictionHistory, play
     rng = np.random.default_rng(3)
     mu = np.array([0.4, 0.0, 0.3])
-    h = FrictionHistory(mu)
-    band = Band(jnp.full(3, jnp.nan), jnp.zeros(3), jnp.zeros(3))
-    phi = np.zeros(3)
+    h = FrictionHistory(mu, turns=turns)
+    shape = h.s.shape
+    band = Band(jnp.full(shape, jnp.nan), jnp.zeros(3), jnp.zeros(shape))
+    phi = np.zeros(shape)
     for _ in range(400):
         T = rng.choice([0.0, 1.0, 2.0], 3) * np.exp(rng.choice([0.0, 0.05], 3)
                                                      * rng.standard_normal(3))
-        if rng.random() < 0.5:
-            phi = rng.choice([0.0, 0.5, 1.0], 3) + 0.1 * rng.random(3)
+        if rng.random() < 0.5:  # turning to each turn: increasing along the tendon
+            phi = rng.choice([0.0, 0.5, 1.0], shape) + 0.1 * rng.random(shape)
+            phi = np.cumsum(phi, axis=-1) if turns else phi
         given = {j: str(rng.choice(["in", "out", "stuck"])) for j in range(3)
                  if rng.random() < 0.15}
         s = h.step(T, phi, given)
@@ -275,6 +278,35 @@ def test_history_in_numpy_and_compiled_agree_on_every_branch():
                        jnp.asarray(sign))
         np.testing.assert_allclose(s, np.asarray(c), rtol=0, atol=1e-12)
         np.testing.assert_allclose(h.s, np.asarray(band.s), rtol=0, atol=1e-12)
+
+
+def test_a_state_per_turn_is_the_per_disk_stick_slip():
+    """At a fixed shape the play at every turn is the disk-by-disk stick/slip law, made here on
+    its own: the tension past disk j, w_j = ln T_j, holds until the ratio across the disk
+    leaves its Capstan band, w_j ← clip(w_j, w_{j−1} − μφ_j, w_{j−1} + μφ_j), from the actuator
+    (w_0 = ln T) to the anchor, starting pulled in; over a random walk of the tension with
+    many reversals, ``T_j = T exp(−s_j μ ψ_j)`` is that tension at every disk. One state per
+    tendon (every turn at the anchor's) misses the profile inside by tenths of ln T."""
+    from tendonsense.sliding import FrictionHistory
+    rng = np.random.default_rng(1)
+    mu, turn = 0.4, rng.uniform(0.05, 0.4, 8)
+    psi = np.cumsum(turn)
+    history = FrictionHistory([mu, 0.0], turns=turn.size)
+    w, worst, anchor_only = None, 0.0, 0.0
+    for p in np.log(2.0) + np.cumsum(rng.normal(0.0, 0.15, 400)):
+        s = history.step(np.exp([p, 0.0]), np.stack([psi, psi]))[0]
+        if w is None:
+            w = p - mu * psi
+        else:
+            before = p
+            for j in range(turn.size):
+                w[j] = np.clip(w[j], before - mu * turn[j], before + mu * turn[j])
+                before = w[j]
+        worst = max(worst, np.abs(p - s * mu * psi - w).max())
+        anchor_only = max(anchor_only, np.abs(p - s[-1] * mu * psi - w).max())
+    assert worst < 1e-12
+    assert abs(w[-1] - (p - s[-1] * mu * psi[-1])) < 1e-12 and anchor_only > 0.1
+
 
 def test_turning_is_the_turn_of_the_path(prototype):
     """φ of a tendon bent one way in one plane (no gravity: the tendon's moment alone; or the
@@ -300,33 +332,38 @@ def test_turning_is_the_turn_of_the_path(prototype):
 
 def _history_log(robot, tensions, weight):
     """Readings of a tip weight under t1's tension history, each solved with the friction
-    state of the play operator at its own shape (iterated to a fixed point): the law the log
-    estimator follows, made independently of it (forward solves)."""
-    from tendonsense.forward import model_for
+    state of the play operator at every turn at its own shape (iterated to a fixed point): the
+    law the log estimator follows, made independently of it (forward solves)."""
+    import jax
+
+    from tendonsense.forward import _statics_drive, make_result, model_for
     from tendonsense.readings import Sample
-    from tendonsense.sliding import FrictionHistory, turning_program
+    from tendonsense.sliding import FrictionHistory
+    from tendonsense.statics import Unknowns, solve_system
+    from tendonsense.tendons import depths, turns
     model = model_for(robot)
-    turn = turning_program(model.structure)
-    history, q, rows, states = FrictionHistory(model.values.friction), None, [], []
+    turn = jax.jit(lambda q, values: depths(model.structure, values, q))
+    mu = np.asarray(model.values.friction)
+    history = FrictionHistory(mu, turns=turns(model.values))
+    q, rows, states = None, [], []
     load = [(robot.rod.length, (0.0, 0.0, -weight))]
     for k, t in enumerate(tensions):
         before, s_last = history.copy(), None
+        drive = _statics_drive(robot, {"t1": t}, load)
         for _ in range(12):
             history = before.copy()
             s = history.step([t, 0.0, 0.0], None if q is None else
-                             np.asarray(turn(np.asarray(q)[None], model.values))[0])
+                             np.asarray(turn(np.asarray(q), model.values)))
             if s_last is not None and np.max(np.abs(s - s_last)) < 1e-9:
                 break
             s_last = s
-            signed = robot.replace(tendons=tuple(
-                dataclasses.replace(td, friction=td.friction * sk)
-                for td, sk in zip(robot.tendons, s)))
-            res = solve(signed, {"t1": t}, load, q0=q)
+            values = model.values._replace(friction=s * mu[:, None])
+            res = solve_system(model.structure, values, (), drive, Unknowns.none(3, 1), q)
             assert res.converged
-            q = res.q
-        rows.append(Sample(k + 1, 0.01 * k, {"t1": t, "t2": 0.0, "t3": 0.0},
-                           {"t1": res.displacements["t1"]}, {}))
-        states.append(s[0])
+            q = np.asarray(res.x)
+        y = make_result(model, res.x, np.asarray(drive.tensions), res).displacements["t1"]
+        rows.append(Sample(k + 1, 0.01 * k, {"t1": t, "t2": 0.0, "t3": 0.0}, {"t1": y}, {}))
+        states.append(s[0, -1])
     return rows, np.array(states)
 
 

@@ -36,7 +36,7 @@ from .model import Structure, Values, points_at
 from .rod import section
 from .sliding import Band, play
 from .statics import CACHE_SIZE, Drive, Unknowns, admissible, scaling, terms
-from .tendons import length_changes, turning
+from .tendons import depths, length_changes, turns
 
 _Z = np.sqrt(3.0) / 6.0
 GAMMA = 2.0 - np.sqrt(2.0)
@@ -161,10 +161,10 @@ class Schedule(NamedTuple):
                      jnp.zeros(0))
 
     def friction(self, band: Band, mu, t):
-        """Every tendon's signed friction coefficient at time t from the state ``band``
-        (the play operator at the band's turning angles), and its friction state."""
+        """Every tendon's signed friction coefficient at each turn at time t from the state
+        ``band`` (the play operator at the band's turning), and its friction state there."""
         s, _ = play(band, mu, self.drive(t).tensions, band.phi, self.sliding)
-        return s * mu, s
+        return s * mu[:, None], s
 
 
 def _load(structure, values, q, drive):
@@ -323,7 +323,7 @@ def integrator(structure: Structure, inertia: bool):
             (q, v, _, lu, ok), a = jax.lax.scan(one, (s.q, s.v, s.a, s.lu, jnp.asarray(True)),
                                                 jnp.arange(2))
             _, band = play(s.band, values.friction, schedule.drive(s.t + h).tensions,
-                           turning(structure, values, q), schedule.sliding)
+                           depths(structure, values, q), schedule.sliding)
             return State(s.t + h, q, v, a[1], lu, band), ok
 
         def advance(c, t_end):
@@ -357,6 +357,7 @@ def integrator(structure: Structure, inertia: bool):
             q, v = _hermite(prev, s, t_end)
             grid, mk = poses(values, q, points_at(structure, values, values.marker_X))
             _, state = schedule.friction(prev.band, values.friction, t_end)
+            state = state[:, -1]  # a tendon's state: its anchor's
             out = (q, v, positions(mk, values.marker_offsets),
                    length_changes(structure, values, grid, q),
                    ok & jnp.all(jnp.isfinite(q)), admissible(values, q), state)
@@ -371,7 +372,8 @@ def integrator(structure: Structure, inertia: bool):
         h from there, and every tendon's first reading ahead (pulled in unless told)."""
         scaled, factor, _, rate = parts(values, schedule)
         n_t = values.friction.shape[0]
-        band = Band(jnp.full(n_t, jnp.nan), jnp.zeros(n_t), turning(structure, values, q))
+        band = Band(jnp.full((n_t, turns(values)), jnp.nan), jnp.zeros(n_t),
+                    depths(structure, values, q))
         _, band = play(band, values.friction, schedule.drive(t).tensions, band.phi,
                        schedule.sliding)
         mu, _ = schedule.friction(band, values.friction, t)

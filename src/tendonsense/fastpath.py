@@ -366,7 +366,7 @@ class Followed(NamedTuple):
 
     carry: Carry  # for the next sample (as it was if this one failed)
     row: Track  # the sample's own solution
-    state: jax.Array  # (n_t,) the friction state it was solved with
+    state: jax.Array  # (n_t, turns) the friction state it was solved with, at every turn
     band: Band  # the history after it (as it was if it failed)
     code: jax.Array | None = None  # (n_t,) each tendon's direction: +1 in, −1 out, 0 stuck
     ends: Ends | None = None  # the band's ends for the next sample
@@ -389,10 +389,10 @@ def _followed(structure: Structure, step, carry, band, d, given, unknowns, value
     nq = structure.nq
     mu = values.friction
     keeps, after_pull = pulled(band, d.tensions, given)
-    ones = jnp.ones_like(mu)
+    ones = jnp.ones_like(band.phi)
 
     def solve(c, s):
-        return step(c, d, {"friction": s * mu}, unknowns, values)
+        return step(c, d, {"friction": s * mu[:, None]}, unknowns, values)
 
     blank = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype),
                                    jax.eval_shape(solve, carry, ones)[1])
@@ -400,7 +400,8 @@ def _followed(structure: Structure, step, carry, band, d, given, unknowns, value
     st = dict(k=zero, new=carry, tr=blank, s=ones, band=band, last=band.phi,
               settled=jnp.asarray(False), done=jnp.asarray(skip))
     if ends is not None:
-        st.update(j=zero, n_ends=zero, stuck=jnp.zeros(mu.shape, bool), code=ones, ends=ends,
+        st.update(j=zero, n_ends=zero, stuck=jnp.zeros(mu.shape, bool), code=jnp.ones_like(mu),
+                  ends=ends,
                   z=jnp.full((2 ** mu.shape[0], carry.x.size - nq), jnp.nan))
 
     def again(st):
@@ -409,9 +410,9 @@ def _followed(structure: Structure, step, carry, band, d, given, unknowns, value
         k, tr, s = st["k"], st["tr"], st["s"]
         # the turning of the shape (one copy in the program; not needed pulled in, nor for
         # the band's ends): the first pass's is the last sample's shape's
-        phi = jax.lax.cond(keeps | st["settled"], lambda: jnp.zeros_like(mu),
-                           lambda: tendons.turning(structure, values,
-                                                   jnp.where(k == 0, carry.x, tr.x)[:nq]))
+        phi = jax.lax.cond(keeps | st["settled"], lambda: jnp.zeros_like(band.phi),
+                           lambda: tendons.depths(structure, values,
+                                                  jnp.where(k == 0, carry.x, tr.x)[:nq]))
         last = jnp.where(k == 0, phi, st["last"])
         s_own, after_own = jax.lax.cond(
             keeps, lambda: (ones, after_pull),
@@ -460,19 +461,22 @@ def _next_end(st, settles, phi, stuck_given, tension_noise, mu):
     the sample's; its sensitivity is not needed (no exact pass: the carry's inverse Jacobian
     is refreshed where it fails)."""
     s, tr = st["s"], st["tr"]
-    edge = jnp.maximum(EDGE, reach(mu, phi, tension_noise, jnp))
-    sliding = (s >= 1 - edge) | (s <= -1 + edge)
+    anchor = s[:, -1]  # a tendon's direction is its anchor's
+    edge = jnp.maximum(EDGE, reach(mu, phi[:, -1], tension_noise, jnp))
+    sliding = (anchor >= 1 - edge) | (anchor <= -1 + edge)
     stuck = tr.converged & (jnp.asarray(stuck_given, bool) | ~sliding)
     n = jnp.sum(stuck)
     st = dict(st, stuck=jnp.where(settles, stuck, st["stuck"]),
-              code=jnp.where(settles, jnp.where(stuck, 0.0, jnp.where(s >= 1 - edge, 1.0, -1.0)),
+              code=jnp.where(settles, jnp.where(stuck, 0.0,
+                                                jnp.where(anchor >= 1 - edge, 1.0, -1.0)),
                              st["code"]),
               n_ends=jnp.where(settles, jnp.where(n > 0, jnp.left_shift(1, n), 0),
                                st["n_ends"]))
     stuck, j, e = st["stuck"], st["j"], st["ends"]
     # the j-th sign pattern of the stuck tendons, the first the most significant bit
     shift = jnp.where(stuck, jnp.sum(stuck) - jnp.cumsum(stuck), 0)
-    signs = jnp.where(stuck, jnp.where(jnp.right_shift(j, shift) & 1, 1.0, -1.0), s)
+    signs = jnp.where(stuck[:, None],
+                      jnp.where(jnp.right_shift(j, shift) & 1, 1.0, -1.0)[:, None], s)
     # the same ends as the last sample's (ends past the slots start afresh)
     follows = (j < e.ok.size) & e.ok[j] & jnp.all(e.stuck == stuck)
     slot = jax.tree_util.tree_map(lambda a: a[j], e.carry)._replace(scaling=st["new"].scaling)
@@ -492,12 +496,13 @@ def follower(structure: Structure, measured: tuple[int, ...], n_z: int,
     states, bands)``, stopping early as :func:`tracker`'s ``until_failure``:
     :func:`tracker` with every tendon's friction following its history
     (:mod:`tendonsense.sliding`). A sample that keeps every tendon pulled in is solved with
-    friction μ; any other with friction s μ, its state s settled at its own shape by up to
-    :data:`~tendonsense.sliding.FIXED_POINT` solves, each from the last (the first with the
-    turning of the last sample's shape). ``given`` (N, n_t): states set by the log, NaN where
-    the history decides; ``band`` (:class:`~tendonsense.sliding.Band`) the history before the
-    first sample, ``bands`` after each. A failed or skipped sample leaves the history as it
-    was."""
+    friction μ; any other with friction s_j μ past each turn j, its state s (n_t, turns)
+    settled at its own shape by up to :data:`~tendonsense.sliding.FIXED_POINT` solves, each
+    from the last (the first with the turning of the last sample's shape). ``given`` (N, n_t):
+    states set by the log, NaN where the history decides; ``band``
+    (:class:`~tendonsense.sliding.Band`, per turn) the history before the first sample,
+    ``bands`` after each; ``states`` (N, n_t, turns). A failed or skipped sample leaves the
+    history as it was."""
     init, step = _sample_fns(structure, measured, n_z, tension_columns, exact_every)
 
     def follow(x0, drives, unknowns, values, given, band, count, failing):
@@ -522,7 +527,7 @@ class LiveRow(NamedTuple):
     admissible: bool  # strain within the model's range
     markers: np.ndarray  # (n_markers, 3)
     sigma: np.ndarray  # (n_z,) 1-σ band of z
-    state: np.ndarray  # (n_t,) the friction state it was solved with
+    state: np.ndarray  # (n_t, turns) the friction state it was solved with, at every turn
     code: np.ndarray  # (n_t,) each tendon's direction: +1 in, −1 out, 0 stuck
     z: np.ndarray  # (2**n_t, n_z) the unknowns at each end of the band (NaN: none)
 
@@ -547,13 +552,15 @@ class Live:
     instead of the state's carry, the history and the ends kept. ``loads``: the drive's
     point forces (n_p, 3), their X (n_p,) and gravity (3,). The sensitivity columns (for the
     1-σ band) are the measured lengths and the tensions of ``tension_columns``. ``follows``:
-    whether friction follows a history (else the state keeps no ends)."""
+    whether friction follows a history (else the state keeps no ends); ``turns``: the
+    friction states of a tendon (:func:`~tendonsense.tendons.turns` of the values)."""
 
     def __init__(self, structure: Structure, measured: tuple[int, ...], n_z: int,
-                 tension_columns: tuple[int, ...], follows: bool,
+                 tension_columns: tuple[int, ...], follows: bool, turns: int,
                  exact_every: int = EXACT_EVERY):
         init, step = _sample_fns(structure, measured, n_z, tension_columns, exact_every)
         nq, n_t, n_m = structure.nq, structure.n_tendons, len(measured)
+        self.turns = turns
         n_x = nq + n_z
         self.sizes = (n_t, n_m, n_t, n_t, 1, 1, 1, n_x)
         self.n_x, self.n_t, self.nq = n_x, n_t, nq
@@ -573,8 +580,8 @@ class Live:
             carry = carry_at(x0, d, unknowns, values)
             kept = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (slots, *a.shape)),
                                           carry._replace(scaling=None))
-            nan = jnp.full(n_t, jnp.nan)
-            return carry, Band(nan, jnp.zeros(n_t), jnp.zeros(n_t)), Ends(
+            return carry, Band(jnp.full((n_t, turns), jnp.nan), jnp.zeros(n_t),
+                               jnp.zeros((n_t, turns))), Ends(
                 kept, jnp.zeros(slots, bool), jnp.zeros(n_t, bool))
 
         def unravel(state, x0, d, unknowns, values):
@@ -609,7 +616,7 @@ class Live:
                 ok=ends.ok.at[slot].set(fine))
             return ravel_pytree((carry, band, ends))[0], fine
 
-        key = (structure, measured, n_z, tension_columns, follows, exact_every)
+        key = (structure, measured, n_z, tension_columns, follows, turns, exact_every)
         self.start = Program(start, "live_start", key)
         self.sample = Program(sample, "live_sample", key)
         self.put = Program(put, "live_put", key)
@@ -625,19 +632,20 @@ class Live:
     def unpack(self, flat: np.ndarray, n_markers: int) -> LiveRow:
         """:meth:`sample`'s packed vector (numpy), in the order it is packed."""
         n_x, n_t, n_z = self.n_x, self.n_t, self.n_x - self.nq
-        ends = np.cumsum((n_x, 1, 1, 1, 3 * n_markers, n_z, n_t, n_t)).tolist()
+        ends = np.cumsum((n_x, 1, 1, 1, 3 * n_markers, n_z, n_t * self.turns, n_t)).tolist()
         x, conv, its, fine, markers, sigma, state, code = (
             flat[a:b] for a, b in zip([0] + ends, ends))
         return LiveRow(x, bool(conv[0]), int(its[0]), bool(fine[0]), markers.reshape(-1, 3),
-                       sigma, state, code, flat[ends[-1]:].reshape(2 ** n_t, n_z))
+                       sigma, state.reshape(n_t, self.turns), code,
+                       flat[ends[-1]:].reshape(2 ** n_t, n_z))
 
 
 @lru_cache(maxsize=CACHE_SIZE)
 def live(structure: Structure, measured: tuple[int, ...], n_z: int,
-         tension_columns: tuple[int, ...], follows: bool,
+         tension_columns: tuple[int, ...], follows: bool, turns: int,
          exact_every: int = EXACT_EVERY) -> Live:
     """The :class:`Live` programs of a problem (one per robot structure and problem shape)."""
-    return Live(structure, measured, n_z, tension_columns, follows, exact_every)
+    return Live(structure, measured, n_z, tension_columns, follows, turns, exact_every)
 
 
 def stacked_drives(prob: Problem, tensions: np.ndarray, targets: np.ndarray) -> Drive:

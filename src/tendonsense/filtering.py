@@ -46,7 +46,7 @@ from .problem import Problem, _jacobians_fn
 from .result import SampleEstimate
 from .sliding import NOISE_REACH, FrictionHistory, labels
 from .statics import CACHE_SIZE, Drive, Unknowns, admissible, terms
-from .tendons import length_changes, turning
+from .tendons import depths, length_changes, turns
 
 #: the time the robot is taken to have been at rest before the first sample, s
 REST = 1e6
@@ -92,9 +92,10 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int,
     """The compiled ``step(state, t, drive, unknowns, values, tuning, markers) -> (state, row)``
     (``markers``: the markers' :class:`~tendonsense.model.PointSet`, made once): one
     predict and update at time t with the tensions and measured length changes of ``drive``;
-    ``row`` is ``[q, z, σ_z, markers, φ, ok]`` packed in one vector (one transfer to the host;
-    φ the tendons' turning angles at the estimate; ok (1 or 0): finite, later than the state
-    and in the model's strain range). A sample that is not ok returns the state unchanged.
+    ``row`` is ``[q, z, σ_z, markers, ψ, ok]`` packed in one vector (one transfer to the host;
+    ψ the tendons' turning to each turn at the estimate, :func:`~tendonsense.tendons.depths`;
+    ok (1 or 0): finite, later than the state and in the model's strain range). A sample
+    that is not ok returns the state unchanged.
 
     The prediction is one linearly implicit Euler step (the implicit Euler equation
     linearised at the last estimate; no iteration, so that every sample's work is fixed).
@@ -181,7 +182,7 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int,
         new = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, state)
         sigma = jnp.sqrt(jnp.maximum(jnp.diagonal(P)[n_s:], 0.0))
         return new, jnp.concatenate([q, z, sigma, jnp.ravel(positions(mk, values.marker_offsets)),
-                                     turning(structure, values, q), ok[None]])
+                                     jnp.ravel(depths(structure, values, q)), ok[None]])
 
     return Program(step, "filter_step", (structure, measured, n_z, ringing))
 
@@ -219,7 +220,13 @@ class MotionFilter:
         if inertia and rod.damping > 0 and rod.density > 0:
             self.ringing = int(np.sum(free_modes(model.structure, model.values)[1] < 1.0))
         self._step = filter_step(model.structure, prob.measured, prob.n_z, self.ringing)
-        self._values, self._unknowns = jax.device_put((model.values, prob.unknowns))
+        history = FrictionHistory(model.values.friction, MARGIN * noise.tension,
+                                  turns(model.values))
+        self._history = history if history.active else None
+        values = model.values
+        if self._history is not None:  # friction per turn, at every sample (one program)
+            values = values._replace(friction=np.outer(values.friction, np.ones(history.turns)))
+        self._values, self._unknowns = jax.device_put((values, prob.unknowns))
         self._markers = jax.device_put(points_at(model.structure, model.values,
                                                  model.values.marker_X))
         tuning = Tuning(*(np.float64(v) for v in (walk, noise.length, noise.tension)))
@@ -227,11 +234,9 @@ class MotionFilter:
         self._tuning, self._start, self._drive = jax.device_put((
             tuning, tuning._replace(walk=np.float64(0.0)),
             prob.drive(np.zeros(model.n_tendons), np.zeros(len(prob.measured)))))
-        history = FrictionHistory(model.values.friction, MARGIN * noise.tension)
-        self._history = history if history.active else None
-        # where the parts of the step's row [q, z, σ_z, markers, φ, ok] (filter_step) start
+        # where the parts of the step's row [q, z, σ_z, markers, ψ, ok] (filter_step) start
         self._row = np.cumsum([0, model.nq, prob.n_z, prob.n_z, 3 * len(prob.robot.markers),
-                               model.n_tendons, 1]).tolist()
+                               model.n_tendons * turns(model.values), 1]).tolist()
         self.reset()
 
     def prepare(self):
@@ -246,7 +251,8 @@ class MotionFilter:
         """Forget the state: the next sample starts the filter again, at rest."""
         self._state, self._t, self._failures = None, -np.inf, 0
         if self._history is not None:
-            self._history = FrictionHistory(self._history.mu, self._history.margin)
+            self._history = FrictionHistory(self._history.mu, self._history.margin,
+                                            self._history.turns)
 
     def update(self, displacements: Mapping[str, float], tensions: Mapping[str, float],
                time: float | None, sliding: Mapping[str, str] | None = None
@@ -275,10 +281,10 @@ class MotionFilter:
         friction = None
         if history is not None and not history.pulled(T, given):
             friction = history.step(T, None, given)  # at the last shape's turning angles
-            values = values._replace(friction=friction * history.mu)  # copied in with the call
-        if state is None:
-            start = estimate_problem(prob, displacements, tensions, self.noise,
-                                     values=values)
+            values = values._replace(friction=friction * history.mu[:, None])  # copied in
+        if state is None:  # (friction at each tendon's anchor's state, as a single reading)
+            start = estimate_problem(prob, displacements, tensions, self.noise, values=(
+                values if history is None else values._replace(friction=values.friction[:, -1])))
             if not start.converged:
                 return self._failed("the first sample's quasi-static estimate did not converge",
                                     start.extra["x"], start.iterations)
@@ -299,12 +305,12 @@ class MotionFilter:
             return self._lost("the step left the model's strain range or did not stay finite")
         self._state, self._t, self._failures = new, float(time), 0
         if history is not None:
-            history.phi = phi  # the next sample's state turns at this shape
+            history.phi = phi.reshape(history.phi.shape)  # the next sample's turns at this shape
             self._history = history
         n = prob.n_magnitudes
-        more = {} if friction is None else dict(
-            friction_state=friction, sliding=labels(
-                friction, history.mu, phi, self.noise.tension,
+        more = {} if friction is None else dict(  # a tendon's state and direction: its anchor's
+            friction_state=friction[:, -1], sliding=labels(
+                friction[:, -1], history.mu, history.phi[:, -1], self.noise.tension,
                 [given.get(k) == "stuck" for k in range(len(friction))]))
         return SampleEstimate(z[:n], sigma[:n], dict(zip(prob.robot.marker_names,
                                                          markers.reshape(-1, 3))),

@@ -25,6 +25,7 @@ from .readings import (SKIPPED_SHOWN, LogSummary, ReadingsError, Sample, check_u
                        write_csv_atomic)
 from .robot import Robot
 from .sliding import GIVEN, FrictionHistory, band_range
+from .tendons import turns
 from .tracking import SampleEstimate, series_chunks
 
 #: samples per compiled scan of a file log
@@ -56,7 +57,7 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
     good = [k for k, s in enumerate(samples) if not s.error]
     out = [_skipped(prob, s) if s.error else None for s in samples]
     done = 0
-    history = FrictionHistory(prob.model.values.friction)
+    history = FrictionHistory(prob.model.values.friction, turns=turns(prob.model.values))
     follow = history.active and not prob.located
     names = robot.tendon_names
     said = [[samples[k].sliding.get(t, "") for t in names] for k in good]
@@ -126,7 +127,9 @@ def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
         for _, chunk in series_chunks(prob, [rows[j].displacements for j in stuck],
                                       [rows[j].tensions for j in stuck], noise, CHUNK,
                                       start=out[stuck[0]].x,
-                                      history=FrictionHistory(prob.model.values.friction),
+                                      history=FrictionHistory(
+                                          prob.model.values.friction,
+                                          turns=turns(prob.model.values)),
                                       given=s, persistent=False):
             got += chunk
         corners.append([e.magnitudes if e.converged else np.full(prob.n_magnitudes, np.nan)

@@ -112,7 +112,7 @@ class Values(NamedTuple):
     poisson_ratio: jax.Array
     density: jax.Array
     damping: jax.Array  # Kelvin–Voigt viscosity η, Pa·s
-    friction: jax.Array  # (n_t,) Capstan μ per tendon
+    friction: jax.Array  # (n_t,) Capstan μ per tendon; signed, per turn (n_t, turns)
     energy_floor: jax.Array  # residual floor per √E (an absolute tolerance)
 
     @property

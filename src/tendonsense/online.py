@@ -21,6 +21,7 @@ from .problem import Problem
 from .result import SampleEstimate
 from .sliding import DIRECTION, GIVEN, band_range
 from .statics import solve_system
+from .tendons import turns
 
 #: evaluations of the solve from the straight rod that a sample the fast path could not
 #: converge gets once an earlier sample has converged (the first gets the full budget)
@@ -83,7 +84,7 @@ class OnlineEstimator:
         self._follows = bool(np.any(np.asarray(model.values.friction) > 0)) and not (
             dynamic or prob.located)
         self._live = live(model.structure, prob.measured, prob.n_z, tuple(range(n_t)),
-                          self._follows)
+                          self._follows, turns(model.values))
         # on the device once: a numpy leaf would be copied in at every call
         self._values, self._unknowns = jax.device_put((model.values, prob.unknowns))
         self._state = None  # the carry, the friction history and the band's ends (Live)
@@ -188,7 +189,7 @@ class OnlineEstimator:
         sample again from its solution in one call (which also gives the sensitivities and
         the band's ends): the estimate, or a failed sample."""
         prob = self.problem
-        values = self._signed(None if row is None else row.state)
+        values = self._signed(None if row is None else row.state[:, -1])  # a start only
         t0 = _clock()
         drive = self._ref.drive(T, targets)
         x, converged, evaluations = self._rescue(drive, displacements, tensions, budget,
@@ -232,7 +233,7 @@ class OnlineEstimator:
                              row.iterations, x, "", self._ref.locations(x), row.sigma[n:])
         if not self._follows:
             return est, row
-        est = replace(est, friction_state=row.state,
+        est = replace(est, friction_state=row.state[:, -1],
                       sliding=tuple(map(DIRECTION.get, row.code.tolist())))
         stuck = np.flatnonzero(row.code == 0)
         if stuck.size:
@@ -252,7 +253,7 @@ class OnlineEstimator:
         for j, signs in enumerate(itertools.product((-1.0, 1.0), repeat=stuck.size)):
             if np.isnan(z[j]).any():
                 s = state.copy()
-                s[stuck] = signs
+                s[stuck] = np.asarray(signs)[:, None]
                 x, ok, _ = self._rescue(drive, None, None, self.rescue_budget, self._signed(s))
                 if ok and j < self._live.slots:
                     self._state, ok = self._live.put(self._state, x, reading, self._loads,
@@ -262,11 +263,13 @@ class OnlineEstimator:
         return z
 
     def _signed(self, state):
-        """The values with every tendon's friction signed by its ``state`` (None: as they
-        are)."""
+        """The values with every tendon's friction signed by its ``state``, one a tendon
+        (n_t,) or one at every turn (n_t, turns) (None: as they are)."""
         if state is None or np.all(state == 1.0):
             return self._values
-        return self._values._replace(friction=state * np.asarray(self._values.friction))
+        mu = np.asarray(self._values.friction)
+        return self._values._replace(friction=state * (mu[:, None] if np.ndim(state) == 2
+                                                       else mu))
 
     def _outside(self, x) -> str:
         """Why located forces at ``x`` are no estimate (an X outside its range), or ''."""

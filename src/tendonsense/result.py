@@ -104,7 +104,8 @@ class SampleEstimate:
     note: str = ""  # why a sample is not converged
     locations: np.ndarray = field(default_factory=lambda: np.zeros(0))  # located forces' X, m
     location_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    friction_state: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per tendon, ±1
+    # per tendon (its anchor's), ±1
+    friction_state: np.ndarray = field(default_factory=lambda: np.zeros(0))
     sliding: tuple[str, ...] = ()  # per tendon: in, out or stuck; empty: not followed (in)
     magnitude_range: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # if stuck
 

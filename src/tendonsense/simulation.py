@@ -32,8 +32,8 @@ class Simulation:
     """A simulated motion, one row per output time: ``q`` and ``v`` (q̇) ``(n, nq)``, the
     tensions (N), tendon length changes (m) and marker positions ``(n, 3)`` (global, m) by name;
     ``converged`` per sample (every step solved, the strain in the model's range); every
-    tendon's friction state by name (+1 pulled in, −1 paid out, stuck between;
-    :mod:`tendonsense.sliding`)."""
+    tendon's friction state by name, its anchor's (+1 pulled in, −1 paid out, stuck between;
+    the state is kept at every turn, :mod:`tendonsense.sliding`)."""
 
     time: np.ndarray
     q: np.ndarray
@@ -190,7 +190,8 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     state = start(q, np.zeros(nq), np.float64(0.0), np.float64(max_step), schedule,
                   model.values)
     markers, _, y, fine = shape_outputs(model.structure, model.values, q)
-    first = (q, np.asarray(state.v), markers, y, True, fine, np.asarray(state.band.s))
+    first = (q, np.asarray(state.v), markers, y, True, fine,
+             np.asarray(state.band.s)[:, -1])  # a tendon's state: its anchor's
     parts = []
     for k in range(0, times.size, CHUNK):
         chunk = times[k:k + CHUNK]

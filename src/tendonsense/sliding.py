@@ -1,23 +1,33 @@
 """The friction direction of every tendon over a log of readings: a play operator on the
-logarithm of its tension.
+logarithm of its tension, at every turn of the tendon.
 
 A tendon pulled in has its tension fade toward the anchor, ``T_anchor = T exp(−μφ)`` (eq. 10
 over its turning angle φ, :func:`~tendonsense.tendons.turning`); paid out, it grows,
-``T_anchor = T exp(+μφ)``; in between it sticks and its anchor tension stays where it was:
-``w = ln T_anchor`` follows the play operator ``w ← clip(w, p − μφ, p + μφ)`` of ``p = ln T``
-(the reading). The state ``s = (p − w) / (μφ)`` ∈ [−1, 1] (+1 pulled in, −1 paid out, stuck
-between) signs the Capstan exponent: the model is solved with friction ``s μ``
-(:func:`~tendonsense.inputs.friction_signs` for the three named directions). With φ fixed
-that is the play operator on ``w``; the state itself is kept and moved by ``Δs = Δp / (μφ)``
-from reading to reading, ``1/(μφ)`` by the trapezoid rule over the last shape and this one,
-so a change of shape alone keeps it. (Keeping ``w`` instead, which a change of shape moves,
-follows the per-disk stick/slip truth of ``benchmarks/friction.py`` far worse: 71 % rms
-error in the release against 11 %.)
+``T_anchor = T exp(+μφ)``; in between it sticks. Where it sticks, each disk holds the tension
+past it until the ratio across it leaves the Capstan band, so the tension past the j-th turn,
+``w_j = ln T_j``, follows the play operator ``w_j ← clip(w_j, p − μψ_j, p + μψ_j)`` of
+``p = ln T`` (the reading), ``ψ_j`` the turning from the actuator to there
+(:func:`~tendonsense.tendons.depths`; plays of widths a and b in a row are one of width a + b):
+a released tendon slips out near the actuator first while the far turns still hold the
+tension of the pull. The state of turn j, ``s_j = (p − w_j) / (μψ_j)`` ∈ [−1, 1] (+1 pulled
+in, −1 paid out, stuck between), signs its Capstan exponent: the model is solved with friction
+``s_j μ`` past turn j (``T_j = T exp(−s_j μ ψ_j)``); a tendon's state, direction and band are
+its anchor's (the last turn's: without noise a tendon in or out at its anchor is so at every
+turn; within the noise's reach of the anchor's edge, turns nearer the actuator may be inside
+their narrower bands). A continuous tendon keeps one state (its anchor's). A named
+direction sets every turn (:func:`~tendonsense.inputs.friction_signs`). With the shape fixed
+that is the play operator on each ``w_j``; the states themselves are kept and moved by
+``Δs_j = Δp / (μψ_j)`` from reading to reading, ``1/(μψ_j)`` by the trapezoid rule over the
+last shape and this one, so a change of shape alone keeps them. Against the per-disk
+stick/slip truth of ``benchmarks/friction.py`` (the reference BVP): one state per tendon
+(every turn at the anchor's) gives 11 % rms error in a release under a tip weight and 50 %
+under a weight at L/2, one per turn 3 % and 19 %. Keeping ``w_j`` instead of ``s_j`` (a
+change of shape then moves the states) gives 71 % with one state per tendon (tip), and with
+one per turn 3.3 % and 18 %, but 5 of 250 rows at L/2 without an equilibrium.
 """
 
 from __future__ import annotations
 
-import math
 from functools import lru_cache
 from typing import Mapping, NamedTuple
 
@@ -84,19 +94,23 @@ def turning_program(structure: Structure) -> Program:
 
 class FrictionHistory:
     """The friction state of every tendon along a log (module docstring), ``mu`` (n_t,) their
-    friction coefficients. The first reading of a tendon finds it pulled in; a state changes
-    with the tension, ``Δs = Δ ln T / (μφ)`` clipped to [−1, 1], and is kept while the tension
-    is (a change of shape alone neither pulls a tendon in nor pays it out)."""
+    friction coefficients, at each of ``turns`` turns (:func:`~tendonsense.tendons.turns`;
+    None: one state per tendon, at its anchor). The first reading of a tendon finds it pulled
+    in; a state changes with the tension, ``Δs_j = Δ ln T / (μψ_j)`` clipped to [−1, 1], and
+    is kept while the tension is (a change of shape alone neither pulls a tendon in nor pays it
+    out). ``s`` and ``phi`` are (n_t, turns), or (n_t,) without turns."""
 
-    def __init__(self, mu, margin: float = 0.0):
+    def __init__(self, mu, margin: float = 0.0, turns: int | None = None):
         self.mu = np.asarray(mu, float)
         self.margin = float(margin)  # of ln T: changes within it are not taken as motion
-        self.s = np.full(self.mu.shape, np.nan)  # the last state; NaN: slack or no reading
+        self.turns = turns
+        shape = self.mu.shape if turns is None else (*self.mu.shape, turns)
+        self.s = np.full(shape, np.nan)  # the last state; NaN: slack or no reading
         self.p = np.zeros(self.mu.shape)  # the last ln T
-        self.phi = np.zeros(self.mu.shape)  # the turning angles of the last shape
+        self.phi = np.zeros(shape)  # the turning to each turn of the last shape
 
     def copy(self) -> "FrictionHistory":
-        h = FrictionHistory(self.mu, self.margin)
+        h = FrictionHistory(self.mu, self.margin, self.turns)
         h.s, h.p, h.phi = self.s.copy(), self.p.copy(), self.phi.copy()
         return h
 
@@ -114,43 +128,49 @@ class FrictionHistory:
         T = np.asarray(tensions, float)
         live = T > 0
         p = np.log(np.where(live, T, 1.0))
-        if (live & ((self.s < 1) | (p < self.p))).any():  # NaN (slack before): False
+        low = self.s.reshape(len(T), -1).min(axis=1)  # NaN (slack before): not below 1
+        if (live & ((low < 1) | (p < self.p))).any():
             return False
-        self.s, self.p = np.where(live, np.where(np.isnan(self.s), 1.0, self.s), np.nan), p
+        self.s = np.where(_per_turn(live, self.s), np.where(np.isnan(self.s), 1.0, self.s),
+                          np.nan)
+        self.p = p
         return True
 
     def step(self, tensions, phi=None, given: Mapping[int, str] | None = None) -> np.ndarray:
-        """The state (n_t,) for the next reading: ``tensions`` (n_t,), N; ``phi`` (n_t,) the
-        turning angles of its shape (None: the last shape's); ``given`` {tendon index:
-        in|out|stuck} from the log (in and out set the state, stuck keeps the history's)."""
+        """The state (the shape of ``s``) for the next reading: ``tensions`` (n_t,), N;
+        ``phi`` the turning to each turn of its shape (the shape of ``s``; None: the last
+        shape's); ``given`` {tendon index: in|out|stuck} from the log (in and out set the
+        state, stuck keeps the history's)."""
         T = np.asarray(tensions, float)
-        last = self.mu * self.phi
+        mu = _per_turn(self.mu, self.s)
+        last = mu * self.phi
         if phi is not None:
+            if np.shape(phi) != self.s.shape:
+                raise ValueError(f"turning {np.shape(phi)} for friction states {self.s.shape}")
             self.phi = np.asarray(phi, float)
-        band = self.mu * self.phi
+        band = mu * self.phi
         p = np.log(np.where(T > 0, T, 1.0))
+        rise = _per_turn(p - self.p, self.s)
         per = _per_width(np, last, np.where(band > 0, band, 1.0))  # used where band > 0
-        given = given or {}
-        s = []
-        for k, (T_k, b, rise, s_k, per_k) in enumerate(zip(
-                T.tolist(), band.tolist(), (p - self.p).tolist(), self.s.tolist(), per.tolist())):
-            # the state moves within ±(1 + margin/band) and reads clipped to ±1: a reading
-            # must pass the band's edge by the margin to move the anchor's tension
-            wide = 1.0 + self.margin / (b if b > 0 else 1e-300) if self.margin else 1.0
-            if not T_k > 0 or given.get(k) == "in":
-                s_k = wide
-            elif given.get(k) == "out":
-                s_k = -wide
-            elif math.isnan(s_k):  # slack before, or the first reading: pulled in
-                s_k = wide
-            else:  # Δs = Δ ln T / (μφ); without a band: in or out at once
-                s_k = (s_k + rise * per_k if b > 0
-                       else math.copysign(math.inf, rise) if rise else s_k)
-                s_k = min(max(s_k, -wide), wide)
-            s.append(s_k)
-        u = np.array(s)
-        self.s, self.p = np.where(T > 0, u, np.nan), p
+        # the state moves within ±(1 + margin/band) and reads clipped to ±1: a reading must
+        # pass the band's edge by the margin to move the tension past the turn
+        wide = 1.0 + self.margin / np.where(band > 0, band, 1e-300) if self.margin \
+            else np.ones_like(band)
+        with np.errstate(invalid="ignore"):  # Δs = Δ ln T / (μψ); without a band: in or out
+            moved = np.where(band > 0, self.s + rise * per,
+                             np.where(rise != 0, np.copysign(np.inf, rise), self.s))
+        u = np.where(np.isnan(self.s), wide, np.clip(moved, -wide, wide))  # first: pulled in
+        code = np.array([{"in": 1.0, "out": -1.0}.get((given or {}).get(k), 0.0)
+                         for k in range(len(T))])
+        u = np.where(_per_turn(code != 0, u), _per_turn(code, u) * wide, u)
+        u = np.where(_per_turn(T > 0, u), u, wide)
+        self.s, self.p = np.where(_per_turn(T > 0, u), u, np.nan), p
         return np.clip(u, -1.0, 1.0)
+
+
+def _per_turn(a, like):
+    """``a`` (n_t,) against states ``like`` (n_t,) or (n_t, turns)."""
+    return a[:, None] if np.ndim(like) == 2 else a
 
 
 def _per_width(xp, last, width):
@@ -184,8 +204,9 @@ def band_range(middle, corners) -> np.ndarray:
 
 class Band(NamedTuple):
     """:class:`FrictionHistory`'s state as arrays, carried along a compiled scan
-    (:func:`~tendonsense.fastpath.follower`): each tendon's last state (NaN: slack or no
-    reading), last ln T and the turning angles of the last shape."""
+    (:func:`~tendonsense.fastpath.follower`): each tendon's last state at each turn (NaN: slack
+    or no reading), last ln T and the turning to each turn of the last shape (``s`` and
+    ``phi`` (n_t, turns), or (n_t,) with one state per tendon)."""
 
     s: jax.Array
     p: jax.Array
@@ -200,12 +221,13 @@ class Band(NamedTuple):
 
 
 def play(band: Band, mu, tensions, phi, given):
-    """:meth:`FrictionHistory.step` in JAX: the state (n_t,) of a reading with ``tensions`` at
-    a shape turning each tendon by ``phi``, and the band after it; ``given`` (n_t,) a state set
-    by the log (+1 in, −1 out), NaN where the history decides."""
-    live = tensions > 0
-    p = jnp.log(jnp.where(live, tensions, 1.0))
-    rise, width = p - band.p, mu * phi
+    """:meth:`FrictionHistory.step` in JAX: the state (the shape of ``band.s``) of a reading
+    with ``tensions`` at a shape whose turning to each turn is ``phi``, and the band after it;
+    ``given`` (n_t,) a state set by the log (+1 in, −1 out), NaN where the history decides."""
+    live = _per_turn(tensions > 0, band.s)
+    p = jnp.log(jnp.where(tensions > 0, tensions, 1.0))
+    mu, given = _per_turn(mu, band.s), _per_turn(given, band.s)
+    rise, width = _per_turn(p - band.p, band.s), mu * phi
     wide = width > 0
     change = jnp.where(wide, rise * _per_width(jnp, mu * band.phi, jnp.where(wide, width, 1.0)),
                        jnp.sign(rise) * jnp.inf)
@@ -221,6 +243,8 @@ def pulled(band: Band, tensions, given):
     so."""
     live = tensions > 0
     p = jnp.log(jnp.where(live, tensions, 1.0))
+    low = band.s.min(axis=1) if band.s.ndim == 2 else band.s  # NaN: not below 1
     keeps = jnp.all(given == 1.0) | jnp.all(jnp.isnan(given) | (given == 1.0)) & ~jnp.any(
-        live & ((band.s < 1) | (p < band.p)))
-    return keeps, Band(jnp.where(live, 1.0, jnp.nan), p, band.phi)
+        live & ((low < 1) | (p < band.p)))
+    return keeps, Band(jnp.where(_per_turn(live, band.s), jnp.ones_like(band.s), jnp.nan), p,
+                       band.phi)

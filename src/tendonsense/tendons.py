@@ -50,7 +50,8 @@ def continuous_actuation(structure: Structure, values: Values, q, friction):
     if not structure.continuous:
         return jnp.zeros((nq, structure.n_tendons))
     index = np.array(structure.continuous)
-    B = _continuous_B(q, friction[index], values.continuous, values.h)
+    mu = friction[index] if friction.ndim == 1 else friction[index, -1]  # one state: its anchor's
+    B = _continuous_B(q, mu, values.continuous, values.h)
     return jnp.zeros((nq, structure.n_tendons)).at[:, index].set(B.T)
 
 
@@ -163,7 +164,10 @@ def unit_wrenches(structure: Structure, values: Values, g, friction):
 
     At disk i the tendon pulls with ``f_i = T_i v_L + T_{i+1} v_R`` (eq. 12) where the tension
     drops by ``exp(−μ φ_i)`` across every disk (eq. 10), ``φ_i`` the angle the tendon turns there;
-    at the first disk it arrives from the actuator along the local −x axis.
+    at the first disk it arrives from the actuator along the local −x axis. ``friction`` is one
+    μ per tendon (n_t,), or one per turn (n_t, :func:`turns`): past its j-th turn a tendon's
+    tension is then ``T exp(−μ_j ψ_j)``, ``ψ_j`` the turning from the actuator to there (a
+    friction state per turn, :mod:`tendonsense.sliding`).
     """
     out = jnp.zeros((structure.n_tendons, g.shape[0], 6), g.dtype)
     for index, grp in zip(structure.groups, values.tendons):
@@ -175,26 +179,43 @@ def unit_wrenches(structure: Structure, values: Values, g, friction):
         v_R = jnp.concatenate([u, jnp.zeros((k, 1, 3))], axis=1)
         v_L = jnp.concatenate([-at[:, :1, :3, 0], -u], axis=1)
         phi = _angle(-v_L[:, :-1], v_R[:, :-1])  # eq. 10: the turn at every disk but the anchor
-        mu = friction[index][:, None]
-        ratio = jnp.exp(-mu * jnp.concatenate([jnp.zeros((k, 1)), jnp.cumsum(phi, axis=1)], axis=1))
+        mu = friction[index][:, None] if friction.ndim == 1 else friction[index, :phi.shape[1]]
+        ratio = jnp.exp(-jnp.concatenate([jnp.zeros((k, 1)), mu * jnp.cumsum(phi, axis=1)], axis=1))
         after = jnp.concatenate([ratio[:, 1:], jnp.zeros((k, 1))], axis=1)
         f = ratio[..., None] * v_L + after[..., None] * v_R  # eq. 12
         out = out.at[index[:, None], grp.nodes].add(wrench(at, f, grp.offsets))  # eq. 13
     return out
 
 
+def turns(values: Values) -> int:
+    """The most turns of any tendon (a disk-routed one turns at every disk but its anchor;
+    at least 1): the columns of :func:`depths`."""
+    return max([grp.nodes.shape[1] - 1 for grp in values.tendons] + [1])
+
+
 def turning(structure: Structure, values: Values, q):
     """The angle φ (rad) every tendon turns through from the actuator to its anchor, shape
     (n_t,): the sum of its turns at the disks (eq. 10), or the turning of a continuous path;
     its Capstan band is ``T_anchor / T_actuator ∈ [exp(−μφ), exp(+μφ)]``."""
+    return depths(structure, values, q)[:, -1]
+
+
+def depths(structure: Structure, values: Values, q):
+    """The angle (rad) every tendon turns through from the actuator to each of its turns,
+    ``ψ_j = φ_1 + … + φ_j``, shape (n_t, :func:`turns`): a tendon with fewer turns repeats
+    its last, a continuous one its whole turning (:func:`turning` is the last column)."""
     (g, _), _ = configuration(values, q)
-    phi = jnp.zeros(structure.n_tendons)
+    m = turns(values)
+    phi = jnp.zeros((structure.n_tendons, m))
     for index, grp in zip(structure.groups, values.tendons):
         at, r = path(grp, g)
         u = jnp.diff(r, axis=1)
         u = u / jnp.linalg.norm(u, axis=2, keepdims=True)
         v_L = jnp.concatenate([-at[:, :1, :3, 0], -u], axis=1)
-        phi = phi.at[np.array(index)].set(jnp.sum(_angle(-v_L[:, :-1], u), axis=1))
+        psi = jnp.cumsum(_angle(-v_L[:, :-1], u), axis=1)
+        psi = jnp.concatenate([psi, jnp.repeat(psi[:, -1:], m - psi.shape[1], axis=1)], axis=1) \
+            if psi.shape[1] else jnp.zeros((len(index), m))
+        phi = phi.at[np.array(index)].set(psi)
     if structure.continuous:
         ct = values.continuous
         w = ct.A @ q + ct.c
@@ -203,7 +224,7 @@ def turning(structure: Structure, values: Values, q):
         first = jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0]), ends[:, :1, 1].shape)
         kinks = _unit_angle(jnp.concatenate([first, ends[:, :-1, 1]], 1), ends[:, :, 0])[0]
         total = jnp.sum(kinks, 1) + jnp.sum(ct.weights * rate, axis=(1, 2))
-        phi = phi.at[np.array(structure.continuous)].set(total)
+        phi = phi.at[np.array(structure.continuous)].set(total[:, None])
     return phi
 
 

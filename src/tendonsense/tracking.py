@@ -25,6 +25,7 @@ from .result import SampleEstimate, compact_repr
 from .robot import Robot, value_error
 from .sliding import Band, FrictionHistory, labels, turning_program
 from .statics import Drive, Unknowns, shape_outputs, solve_system
+from .tendons import turns
 
 
 def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
@@ -74,7 +75,8 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
     ``given`` (N, n_t) states the log sets (+1 in, −1 out), NaN where the history decides;
     ``stuck`` (N, n_t) where the log says a tendon is stuck.
 
-    A sample the compiled scan fails is solved on its own (a rescue); with ``persistent``
+    A sample the compiled scan fails is solved on its own (a rescue, at its friction state
+    at every turn); with ``persistent``
     False, only if the sample before it converged (a series that may have no solution over a
     stretch, e.g. a friction band's far end, is not solved row by row in vain)."""
     check_noise(noise, prob.robot)
@@ -83,6 +85,9 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
     if (prob.located or values) and history is not None:
         raise ValueError("a friction history is followed with the model's own values and "
                          "known points only")
+    if history is not None and history.turns != turns(model.values):
+        raise ValueError(f"a friction history of this robot has a state at each of its "
+                         f"{turns(model.values)} turns (FrictionHistory(..., turns=...))")
     # each sample's tension bound with its own E
     varied = varied_values(model.values, values, n)
     T, Y, errors = prob.many_readings(displacements, tensions, varied.get("young_modulus"))
@@ -134,8 +139,9 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                     np.asarray(x0, float), drives, prob.unknowns, model.values,
                     np.asarray(given[rows], float), Band.of(history), len(run), last_failed))
             sigma = band(tr.dx_dm[:, model.nq:, :], len(meas), T[rows][:, list(tcols)], noise)
-            if history is not None:
-                said = labels(states[:len(run)], mu, bands.phi[:len(run)], noise.tension,
+            if history is not None:  # a tendon's state and direction are its anchor's
+                turned, states = states, states[:, :, -1]
+                said = labels(states[:len(run)], mu, bands.phi[:len(run), :, -1], noise.tension,
                               stuck[run])
             for j, k in enumerate(run):
                 friction = {} if history is None else dict(friction_state=states[j],
@@ -153,7 +159,8 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                     v = model.values._replace(**{name: a[k] for name, a in varied.items()})
                     out[k] = replace(_from_result(estimate_problem(
                         prob, displacements[k], tensions[k], noise,
-                        values=v if history is None else v._replace(friction=states[j] * mu),
+                        values=v if history is None or np.all(turned[j] == 1.0)
+                        else v._replace(friction=turned[j] * mu[:, None]),
                         budget=RESCUE_BUDGET if seen_good else None)), **friction)
                     if history is not None and out[k].converged:  # labelled at its own turning
                         phi = np.asarray(turning_program(model.structure)(
