@@ -8,17 +8,21 @@ noise) and
 examples/tutorial/readings.csv (a 6 s log at 50 Hz: tendon t1 pulled from 1 N to 3 N and
 released again while a tip weight of 0, 10 and 20 gF hangs on the tip; 0.1 mm and 0.8 %
 sensor noise). The "true" robot is examples/paper_prototype.toml; along the log, t1's
-friction follows its tension history as a real tendon's does (pulled in while the tension
-rises, stuck when it turns, paid out once it has fallen through the band 2μφ in ln T).
+friction follows its tension history as a real tendon's does, at every disk it turns at
+(pulled in while the tension rises, stuck when it turns, the disks near the actuator paid out
+first, the anchor once ln T has fallen through its band 2μφ).
 """
 
 import csv
 
+import jax
 import numpy as np
 
 from tendonsense import load_robot
 from tendonsense.forward import model_for, solve
-from tendonsense.sliding import FIXED_POINT, STATE_TOL, FrictionHistory, turning_program
+from tendonsense.sliding import FIXED_POINT, STATE_TOL, FrictionHistory
+from tendonsense.statics import Drive, Unknowns, shape_outputs, solve_system
+from tendonsense.tendons import depths, turns
 
 GF = 9.80665e-3
 robot = load_robot("examples/paper_prototype.toml")
@@ -51,14 +55,17 @@ grams = np.where(time < 2, 0.0, np.where(time < 4, 10.0, 20.0))
 
 def released(T, load):
     """The length change of t1 at each tension of ``T`` under ``load`` (N, 3), its friction
-    state following the tension history: at each reading the state at the sample's own shape
-    (its turning angles φ), settled by a few solves."""
+    state at every turn following the tension history: at each reading the state at the
+    sample's own shape (the turning to each disk, ψ), settled by a few solves."""
     model = model_for(robot)
-    turning = turning_program(model.structure)
+    turned = jax.jit(lambda q: depths(model.structure, model.values, q))
     mu = np.asarray(model.values.friction, float)
-    history, phi, q, out = FrictionHistory(mu), np.zeros_like(mu), None, []
+    history = FrictionHistory(mu, turns=turns(model.values))
+    phi, q, out = np.zeros_like(history.phi), None, []
     for T_k, f in zip(T, load):
         tensions = np.array([T_k, 0.0, 0.0])
+        drive = Drive(tensions, np.asarray(f, float)[None], np.array([0.25]),
+                      np.asarray(robot.gravity, float), np.zeros(0))
         before, state = history, None
         for _ in range(FIXED_POINT):
             history = before.copy()
@@ -67,12 +74,13 @@ def released(T, load):
             if state is not None and np.max(np.abs(new - state)) <= STATE_TOL:
                 break
             state = new
-            signed = robot.with_parameters(friction={"t1": state[0] * mu[0]})
-            res = solve(signed, {"t1": T_k}, [(0.25, f)], q0=q)
+            values = model.values._replace(friction=state * mu[:, None])
+            res = solve_system(model.structure, values, (), drive, Unknowns.none(3, 1), q)
             assert res.converged
-            phi_k = np.asarray(turning(res.q[None], model_for(signed).values))[0]
-        q, phi = res.q, phi_k
-        out.append(res.displacements["t1"])
+            q_k = np.asarray(res.x)
+            phi_k = np.asarray(turned(q_k))
+        q, phi = q_k, phi_k
+        out.append(float(shape_outputs(model.structure, model.values, q)[2][0]))
     return np.array(out)
 
 
