@@ -75,8 +75,9 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
     ``given`` (N, n_t) states the log sets (+1 in, −1 out), NaN where the history decides;
     ``stuck`` (N, n_t) where the log says a tendon is stuck.
 
-    A sample the compiled scan fails is solved on its own (a rescue, at its friction state
-    at every turn); with ``persistent``
+    A sample the compiled scan fails is solved on its own (a rescue; with a history, each
+    tendon's friction at its anchor's state at every turn: solved at the state of each turn,
+    such a rescue did not converge on a slow rod's log); with ``persistent``
     False, only if the sample before it converged (a series that may have no solution over a
     stretch, e.g. a friction band's far end, is not solved row by row in vain)."""
     check_noise(noise, prob.robot)
@@ -140,7 +141,7 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                     np.asarray(given[rows], float), Band.of(history), len(run), last_failed))
             sigma = band(tr.dx_dm[:, model.nq:, :], len(meas), T[rows][:, list(tcols)], noise)
             if history is not None:  # a tendon's state and direction are its anchor's
-                turned, states = states, states[:, :, -1]
+                states = states[:, :, -1]
                 said = labels(states[:len(run)], mu, bands.phi[:len(run), :, -1], noise.tension,
                               stuck[run])
             for j, k in enumerate(run):
@@ -159,8 +160,7 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                     v = model.values._replace(**{name: a[k] for name, a in varied.items()})
                     out[k] = replace(_from_result(estimate_problem(
                         prob, displacements[k], tensions[k], noise,
-                        values=v if history is None or np.all(turned[j] == 1.0)
-                        else v._replace(friction=turned[j] * mu[:, None]),
+                        values=v if history is None else v._replace(friction=states[j] * mu),
                         budget=RESCUE_BUDGET if seen_good else None)), **friction)
                     if history is not None and out[k].converged:  # labelled at its own turning
                         phi = np.asarray(turning_program(model.structure)(
