@@ -213,8 +213,7 @@ def depths(structure: Structure, values: Values, q):
         u = u / jnp.linalg.norm(u, axis=2, keepdims=True)
         v_L = jnp.concatenate([-at[:, :1, :3, 0], -u], axis=1)
         psi = jnp.cumsum(_angle(-v_L[:, :-1], u), axis=1)
-        psi = jnp.concatenate([psi, jnp.repeat(psi[:, -1:], m - psi.shape[1], axis=1)], axis=1) \
-            if psi.shape[1] else jnp.zeros((len(index), m))
+        psi = jnp.concatenate([psi, jnp.repeat(psi[:, -1:], m - psi.shape[1], axis=1)], axis=1)
         phi = phi.at[np.array(index)].set(psi)
     if structure.continuous:
         ct = values.continuous
