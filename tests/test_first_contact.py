@@ -187,13 +187,13 @@ def test_a_marker_noise_in_mm_and_a_parameter_twice_are_refused(prototype):
     warning) and --param density twice (silently once): refused before JAX; the noise in
     Python too."""
     snaps = ROOT / "examples" / "tutorial" / "snapshots.csv"
-    for args, why in ((["--marker-noise", "0.5"], "--marker-noise 0.5 m is not under a tenth "
-                                                    "of the rod's length"),
-                      (["--param", "density", "--param", "density"],
-                       "parameter density given twice")):
+    for args, status, why in ((["--marker-noise", "0.5"], 1, "--marker-noise 0.5 m is not under "
+                                                            "a tenth of the rod's length"),
+                              (["--param", "density", "--param", "density"], 2,
+                               "--param density given twice")):  # usage, as any option twice
         rc, err, jax_loaded = refused_before_jax("identify", PROTOTYPE, "--snapshots", snaps,
                                                  *args)
-        assert rc == 1 and why in err and not jax_loaded, err
+        assert rc == status and why in err and not jax_loaded, err
     snap = Snapshot(dict(t1=0.0, t2=0.0, t3=0.0), {"tip": np.array([0.24, 0.0, -0.05])})
     with pytest.raises(ValueError, match="marker noise 0.5 m is not under a tenth"):
         identify(prototype, [snap], ("young_modulus",), marker_noise=0.5)
@@ -605,9 +605,9 @@ def test_the_papers_experiments_on_another_robot_say_so(capsys):
     measure how far that robot is from the prototype; with the prototype, no such line."""
     from tendonsense.cli import main
     main(["experiments", ROOT / "examples" / "soromox_tentacle.toml"])
-    assert "is not its robot file" in capsys.readouterr().out
+    assert "note: these are the readings" in capsys.readouterr().err  # not in the table
     main(["experiments", PROTOTYPE])
-    assert "is not its robot file" not in capsys.readouterr().out
+    assert "is not its robot file" not in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("kind, header, named", [
@@ -767,6 +767,10 @@ def test_a_motion_out_of_time_order_is_refused(prototype, tmp_path):
             p = cli(*args)
             assert p.returncode == 1 and f"row {row}: time" in p.stderr, p.stderr
             assert "in time order" in p.stderr and len(p.stderr.strip().splitlines()) == 1
+        if name == "backwards":  # any log, static too (its friction follows the rows)
+            with pytest.raises(ValueError, match=f"row {row}: time .* in time order"):
+                read_readings(log, prototype)
+            continue
         measured, samples = read_readings(log, prototype)
         with pytest.raises(ValueError, match="in time order"):
             identify_damping(prototype, samples)
@@ -865,3 +869,68 @@ def test_a_run_that_compiles_says_so_once_on_a_terminal(tmp_path):
     assert first.count("compiling") == 1 and str(tmp_path / "a") in first, first
     assert run("a", True) == ""  # loaded from the cache
     assert run("b", False) == ""  # compiled, but not on a terminal
+
+
+def test_a_static_log_in_time_order_and_a_stream_row_out_of_it(tmp_path):
+    """Two logs joined (time going back) are refused as a file, named by the row, before
+    JAX; a live stream skips and marks such a row and goes on."""
+    rows = (ROOT / "examples" / "tutorial" / "readings.csv").read_text().splitlines()
+    joined = tmp_path / "joined.csv"
+    joined.write_text("\n".join([*rows[:4], rows[1], rows[4]]) + "\n")
+    rc, err, jax_loaded = refused_before_jax("estimate", PROTOTYPE, "--readings", joined,
+                                             "--unknown", "0.25,0,0,-1", "-o",
+                                             tmp_path / "e.csv")
+    assert rc == 1 and not jax_loaded and len(err.splitlines()) == 1, err
+    assert "row 4: time 0 s is before the row before (0.04 s)" in err
+    assert "in time order" in err and not (tmp_path / "e.csv").exists()
+    p = cli("estimate", PROTOTYPE, "--readings", "-", "--unknown", "0.25,0,0,-1",
+            stdin=joined.read_text())
+    out = list(csv.DictReader(p.stdout.splitlines()))
+    assert p.returncode == 3 and len(out) == 5, p.stderr
+    assert [r["converged"] for r in out] == ["true"] * 3 + ["false", "true"]
+    assert out[3]["note"] == "skipped: time 0 s is before the row before (0.04 s)"
+
+
+def test_every_error_line_has_one_form(tmp_path):
+    """A usage slip, an input slip and a parser's own error: ``tendonsense COMMAND: error:``
+    (``tendonsense: error:`` before a command is known)."""
+    for args, status, line in (
+            (("solve", PROTOTYPE, "--tension", "t1=2", "--tension", "t1=3"), 2,
+             "tendonsense solve: error: --tension t1 given twice (2 and 3)"),
+            (("solve", PROTOTYPE, "--plot", "a.png", "--plot", "b.png"), 2,
+             "tendonsense solve: error: --plot given twice"),
+            (("fk", PROTOTYPE, "--displacement", "t1=-5"), 1,
+             "tendonsense fk: error: displacement t1 = -5 m pulls in more"),
+            (("bogus",), 2, "tendonsense: error: argument COMMAND: invalid choice")):
+        rc, err, _ = refused_before_jax(*args, cwd=tmp_path)
+        assert rc == status and err.startswith(line) and len(err.splitlines()) == 1, err
+
+
+def test_a_simulation_ends_at_its_duration_and_says_a_coarse_step(prototype, tmp_path):
+    """--output-dt that does not divide --duration: the last row at the duration (not short
+    of it); a step longer than the run refused before JAX; a step too long for the rod's
+    relaxation time (τ/5) said, on standard error and as a Python warning."""
+    damped = ROOT / "examples" / "paper_prototype_damped.toml"
+    rc, err, jax_loaded = refused_before_jax("simulate", damped, "--tension", "t1=2",
+                                             "--duration", "0.1", "--max-step", "0.5", "-o",
+                                             tmp_path / "s.csv")
+    assert rc == 1 and not jax_loaded and "--max-step 0.5 s is longer than --duration" in err
+    p = cli("simulate", damped, "--tension", "t1=2", "--duration", "0.1", "--output-dt",
+            "0.03", "--max-step", "0.01", "-o", tmp_path / "s.csv")
+    assert p.returncode == 0 and "simulated 0.1 s, 5 rows every 0.03 s (the last after 0.01 " \
+                                 "s)" in p.stdout, p.stdout + p.stderr
+    assert p.stderr.startswith("tendonsense simulate: warning: a step of 0.01 s is longer "
+                               "than 0.2 of the rod's relaxation time (τ = 3η/E = 0.03 s)")
+    times = [float(r["time"]) for r in csv.DictReader(open(tmp_path / "s.csv"))]
+    assert times == [0.0, 0.03, 0.06, 0.09, 0.1]
+    from tendonsense.robot import load_robot
+    with pytest.warns(UserWarning, match="resolved coarsely"):
+        sim = simulate(load_robot(damped), {"t1": 2.0}, duration=0.1, output_dt=0.03,
+                       max_step=0.01)
+    assert sim.time[-1] == 0.1 and sim.time.size == 5
+
+
+def test_a_coordinate_that_rounds_to_zero_is_printed_without_a_sign_slip():
+    from tendonsense.cli import _signed
+    assert [_signed(v, 4) for v in (-1e-7, 0.0, -0.00006, 0.12345)] == [
+        "+0.0000", "+0.0000", "-0.0001", "+0.1235"]

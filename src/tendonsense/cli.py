@@ -17,8 +17,10 @@ import io
 import json
 import math
 import os
+import re
 import sys
 import time
+import warnings
 from datetime import datetime, timezone
 from functools import partial
 from importlib import resources
@@ -196,7 +198,13 @@ def _robot_argument(p, default: str | None = None):
         p.add_argument("--robot", dest="robot_option", help=argparse.SUPPRESS)
 
 
-def _common(p: argparse.ArgumentParser):
+SHAPE_PLOT = ("also draw the rod's shape (side and top views), its markers, tendons and forces "
+              "into a PNG file (and, for a force of unknown location, the misfit over X into "
+              "SHAPE_location.png); a solve that did not converge is drawn stamped NOT "
+              "CONVERGED")
+
+
+def _common(p: argparse.ArgumentParser, plot: tuple[str, str] = ("SHAPE.png", SHAPE_PLOT)):
     _robot_argument(p)
     p.add_argument("--point-force", action="append", default=[], metavar="X,FX,FY,FZ",
                    type=_numbers(4, "X,FX,FY,FZ"),
@@ -204,11 +212,7 @@ def _common(p: argparse.ArgumentParser):
                         "(m) from the base along the rod; repeatable")
     p.add_argument("--json", action="store_true",
                    help="print the result as one JSON object instead of text")
-    p.add_argument("--plot", metavar="SHAPE.png",
-                   help="also draw the rod's shape (side and top views), its markers, tendons "
-                        "and forces into a PNG file (and, for a force of unknown location, the "
-                        "misfit over X into SHAPE_location.png); a solve that did not converge "
-                        "is drawn stamped NOT CONVERGED")
+    p.add_argument("--plot", metavar=plot[0], help=plot[1])
 
 
 def _analysis(sub, name, summary, description, robot_default):
@@ -395,9 +399,10 @@ def build_parser() -> argparse.ArgumentParser:
               "writes the table, a summary and the figure.", "paper_simulation.toml")
     p = _analysis(sub, "compare", "this model against the paper's simpler rod models on the "
                   "paper's experiments (the paper's Fig. 6)",
-                  "Estimate the paper's experiments with this model and with the paper's "
-                  "simpler rod models (3D-PC, 3D-PC+E) and compare their errors (the paper's "
-                  "Fig. 6); writes the table, a summary and the figure.",
+                  "Estimate the paper's experiments with this model (GVS: the robot file's "
+                  "strain basis) and with the paper's simpler rod models (3D-PC, 3D-PC+E) and "
+                  "compare their errors (the paper's Fig. 6); writes the table, a summary and "
+                  "the figure.",
                   "paper_prototype.toml")
     _experiments_table(p)
 
@@ -408,7 +413,9 @@ def build_parser() -> argparse.ArgumentParser:
                 "readings log a robot would record: time, tension_<name>, displacement_<name>, "
                 "marker_<name>_x/_y/_z, the format estimate --readings reads. Read-out noise "
                 "on request, to rehearse an experiment.")
-    _common(p)
+    _common(p, ("MOTION.png", "also draw the tensions, the length changes and the last "
+                              "marker's motion over time into a PNG file (without the log's "
+                              "read-out noise; its title says so)"))
     p.add_argument("--tension", action="append", default=[], type=_assignment,
                    metavar="NAME=N",
                    help="a tendon's tension in newtons (>= 0), held constant; tendons not named "
@@ -420,9 +427,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="simulated time, s")
     p.add_argument("--output-dt", type=_positive, default=0.01, metavar="S",
                    help="time between two rows of the log, s (default 0.01)")
-    p.add_argument("--max-step", type=_positive, default=2e-3, metavar="S",
-                   help="the integration step, s (default 0.002; halved where a solve fails); "
-                        "rows between steps are interpolated")
+    p.add_argument("--max-step", type=_positive, default=inputs.MAX_STEP, metavar="S",
+                   help="the integration step, s (default 0.002; halved where a solve fails; "
+                        "a warning where it is longer than a fifth of the rod's relaxation "
+                        "time 3η/E); rows between steps are interpolated")
     p.add_argument("--no-inertia", action="store_true",
                    help="leave out inertia (the quasi-static limit with damping; needs "
                         "[rod] damping > 0)")
@@ -654,7 +662,7 @@ def _check_identify(args, robot):
         raise ValueError(f"--param {bad[0]}: not a parameter of this robot (one of "
                          f"{', '.join(allowed)})")
     if twice := next((p for p in params if params.count(p) > 1), None):
-        raise ValueError(f"parameter {twice} given twice (--param)")
+        raise UsageError(f"tendonsense identify: --param {twice} given twice")
     if args.readings is not None:
         if list(params) != ["damping"]:
             raise UsageError("tendonsense identify: --readings fits --param damping alone (E, "
@@ -721,6 +729,11 @@ def _check_simulate(args, robot):
     if args.output_dt > args.duration:
         raise ValueError(f"--output-dt {args.output_dt:g} s is longer than --duration "
                          f"{args.duration:g} s")
+    if args.max_step > args.duration:
+        raise ValueError(f"--max-step {args.max_step:g} s is longer than --duration "
+                         f"{args.duration:g} s")
+    if coarse := inputs.coarse_step(robot, args.max_step):
+        print(f"tendonsense simulate: warning: {coarse}", file=sys.stderr)
     if args.no_inertia and robot.rod.damping <= 0:
         raise ValueError(f"--no-inertia needs [rod] damping > 0 in {args.robot} (without "
                          f"inertia or damping every instant is the static equilibrium: use "
@@ -1063,8 +1076,9 @@ def _other_robot_note(args, robot):
     from .robot import load_robot
     if args.csv == str(DATA / "paper_experiments.csv") and robot != load_robot(
             _robot_default(args)):
-        print(f"note: these are the readings of the paper's prototype; {args.robot} is not its "
-              f"robot file, so the errors also say how far that robot is from the prototype")
+        print(f"tendonsense: note: these are the readings of the paper's prototype; {args.robot} "
+              f"is not its robot file, so the errors also say how far that robot is from the "
+              f"prototype", file=sys.stderr)
 
 
 def _summary_text(command: str, summary: dict) -> str:
@@ -1102,6 +1116,13 @@ def _summary_text(command: str, summary: dict) -> str:
                 lines.append(f"    the same estimates as {v['same_as']} on every row: the "
                              f"strain modes between the two carry no load in these rows")
     return "\n".join(lines)
+
+
+def _signed(v: float, digits: int) -> str:
+    """``v`` with its sign and ``digits`` decimals, a value that rounds to zero as +0 (not
+    -0.0000)."""
+    text = f"{v:+.{digits}f}"
+    return "+" + text[1:] if float(text) == 0 else text
 
 
 def _vector(v) -> str:
@@ -1156,9 +1177,10 @@ def _print_result(result, as_json: bool, title: str, robot, unknowns=()):
             X = result.extra.get("locations", [None] * (i + 1))[i]
             if X is not None:
                 sx = result.extra["location_sigma"][i]
-                print(f"    acting at X = {X:.4g} m ± {sx * 1e3:.2g} mm (1 σ)")
+                print(f"    acting at X = {X:.4g} m ± {sx:.2g} m ({X * 1e3:.0f} ± "
+                      f"{sx * 1e3:.2g} mm) (1 σ)")
     if result.extra.get("note"):
-        print(f"note: {result.extra['note']}")
+        print(f"tendonsense: note: {result.extra['note']}", file=sys.stderr)
     print("tendons (length change: negative = pulled in):")
     for name in result.tensions:
         T, y = result.tensions[name], result.displacements[name]
@@ -1168,8 +1190,8 @@ def _print_result(result, as_json: bool, title: str, robot, unknowns=()):
     X = {m.name: m.X for m in robot.markers}
     for name, p in result.markers.items():
         print(f"  {name} (X = {X.get(name, float('nan')):g} m): "
-              f"{' '.join(f'{v:+.4f}' for v in p)} m  "
-              f"({' '.join(f'{v * 1e3:+.1f}' for v in p)} mm)")
+              f"{' '.join(_signed(v, 4) for v in p)} m  "
+              f"({' '.join(_signed(v * 1e3, 1) for v in p)} mm)")
 
 
 def _single(args, robot) -> bool:
@@ -1525,7 +1547,7 @@ def _identify(args, robot) -> bool:
             written.append(args.fitted_robot)
         if args.plot:
             from . import plotting
-            plotting.calibration(fit, args.plot)
+            plotting.calibration(fit, args.plot, source)
             written.append(args.plot)
     if args.json:
         print(json.dumps(fit.to_json()))
@@ -1549,7 +1571,7 @@ def _identify(args, robot) -> bool:
         print(f"  residuals: {fit.misfit:.2g} times the noise assumed (RMS; about 1 when the model "
               f"explains the data)")
     if fit.warning:
-        print(f"  WARNING: {fit.warning}")
+        print(f"tendonsense identify: warning: {fit.warning}", file=sys.stderr)
     if fit.crossval:
         print("  cross-validation (each snapshot predicted by a fit without it):")
         for c in fit.crossval:
@@ -1579,9 +1601,11 @@ def _simulate(args, robot) -> bool:
                   f"({rest.note}); nothing written", file=sys.stderr)
             return False
         q0 = rest.q
-    sim = simulate(robot, args.schedule, _point_forces(args), duration=args.duration,
-                   output_dt=args.output_dt, max_step=args.max_step,
-                   inertia=not args.no_inertia, sliding=args.sliding, q0=q0)
+    with warnings.catch_warnings():  # a coarse step: said before computing
+        warnings.simplefilter("ignore")
+        sim = simulate(robot, args.schedule, _point_forces(args), duration=args.duration,
+                       output_dt=args.output_dt, max_step=args.max_step,
+                       inertia=not args.no_inertia, sliding=args.sliding, q0=q0)
     cols = sim.readings(args.noise_length, args.noise_tension, args.seed)
     write_csv_atomic(args.log, list(cols), np.column_stack(list(cols.values())).tolist())
     if args.plot:
@@ -1602,8 +1626,10 @@ def _simulate(args, robot) -> bool:
                           "converged": sim.ok}))
     else:
         tip = robot.marker_names[-1] if robot.marker_names else None
-        print(f"simulated {sim.time[-1]:g} s, {sim.time.size} rows every {args.output_dt:g} s; "
-              f"wrote {args.log}" + (f", {args.plot}" if args.plot else ""))
+        last = sim.time[-1] - sim.time[-2] if sim.time.size > 1 else args.output_dt
+        uneven = f" (the last after {last:g} s)" if abs(last - args.output_dt) > 1e-9 else ""
+        print(f"simulated {sim.time[-1]:g} s, {sim.time.size} rows every {args.output_dt:g} s"
+              f"{uneven}; wrote {args.log}" + (f", {args.plot}" if args.plot else ""))
         if tip:
             print(f"marker {tip} at the end: {_vector(sim.markers[tip][-1])} m")
         for n, y in sim.displacements.items():
@@ -1648,6 +1674,16 @@ def _sweep(args, robot) -> bool:
     return good == n
 
 
+def _error(args, message: str) -> None:
+    """One line on standard error, ``tendonsense COMMAND: error: MESSAGE`` (argparse's form),
+    whatever raised it."""
+    said = re.match(r"tendonsense( [a-z]+)?: (.*)", message, re.S)
+    prog = "tendonsense" + ((said.group(1) or "") if said else "")
+    if args is not None and getattr(args, "command", None):
+        prog = f"tendonsense {args.command}"
+    print(f"{prog}: error: {said.group(2) if said else message}", file=sys.stderr)
+
+
 RUN = {"solve": _single, "fk": _single, "view": _view, "identify": _identify,
        "experiments": _experiments, "simulate": _simulate, "sweep": _sweep}
 
@@ -1659,6 +1695,7 @@ def main(argv=None) -> int:
     if not argv:
         parser.print_help(sys.stderr)
         return 2
+    args = None
     try:
         args = parser.parse_args(_join_negative_values(argv))
         if args.command in ("sensitivity", "resolution", "compare", "experiments"):
@@ -1676,13 +1713,13 @@ def main(argv=None) -> int:
         else:
             ok = RUN[args.command](args, robot)
     except UsageError as exc:
-        print(exc, file=sys.stderr)
+        _error(args, str(exc))
         return 2
     except BrokenPipeError:  # the reader of standard output went away: stop quietly
         sys.stdout = open(os.devnull, "w")
         return 0
     except (RobotFileError, ValueError, OSError) as exc:  # a ViewError is an OSError
-        print(f"tendonsense: error: {exc}", file=sys.stderr)
+        _error(args, str(exc))
         return 1
     finally:
         settings.on_first_compile = hook

@@ -13,6 +13,7 @@ each weighted by its noise).
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Callable, NamedTuple, Sequence
@@ -30,7 +31,7 @@ from .kinematics import poses
 from .model import Structure
 from .readings import Snapshot, SnapshotError, motion_step_error, read_snapshots  # noqa: F401 (API)
 from .robot import Robot
-from .simulation import simulate
+from .simulation import MAX_STEP, simulate
 from .statics import CACHE_SIZE, Drive, Unknowns, marker_positions, solve_system, terms
 
 
@@ -502,7 +503,9 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
     One parameter: a coarse search over τ = 3η/E from ``TAU_MIN`` (0.1 ms) to ten times the
     log's duration, then Brent's method in log η between the best point's neighbours. Its
     1-σ uncertainty is where χ² has risen by 1 on either side (half the interval; the profile
-    of the likelihood, no derivative needed). Rows skipped by the reader are left out."""
+    of the likelihood, no derivative needed). Rows skipped by the reader are left out. The
+    warning says also where the fitted damping's relaxation time is too short for the
+    simulation's step (:func:`~tendonsense.inputs.coarse_step`)."""
     rows = [s for s in samples if not s.error]
     if len(rows) < 3:
         raise SnapshotError(f"damping needs a log of at least 3 good rows (got {len(rows)})")
@@ -532,8 +535,10 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
 
     def misfit(log_eta):
         """(χ², marker residuals, length residuals) of the motion with η = exp(log_eta)."""
-        sim = simulate(robot.with_parameters(damping=float(np.exp(log_eta))), schedule,
-                       point_forces, duration=t[-1], inertia=inertia, q0=start.q, at=t[1:])
+        with warnings.catch_warnings():  # a coarse step: said of the fitted damping alone
+            warnings.simplefilter("ignore")
+            sim = simulate(robot.with_parameters(damping=float(np.exp(log_eta))), schedule,
+                           point_forces, duration=t[-1], inertia=inertia, q0=start.q, at=t[1:])
         evaluations[0] += 1
         if not sim.ok:
             return np.inf, None, None
@@ -595,7 +600,10 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
             "rises by less than 1 up to the end of the range searched)")
     ratio, warning = misfit_of({"marker": (dp, marker_noise), "length": (dy, length_noise)},
                                1) if dp is not None else (None, "")
+    fitted = robot.with_parameters(damping=eta)
+    if coarse := inputs.coarse_step(fitted, MAX_STEP):
+        warning = "; ".join(filter(None, (warning, f"at the fitted damping {coarse}")))
     return Identified({"damping": eta}, *errors(dp, dy), *errors(*initial),
                       bool(found.success) and not edge, evaluations[0],
-                      robot.with_parameters(damping=eta), sigma={"damping": sigma}, note=note,
+                      fitted, sigma={"damping": sigma}, note=note,
                       misfit=ratio, warning=warning)

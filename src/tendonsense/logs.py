@@ -237,6 +237,7 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
     online = online_estimator(robot, columns.measured, unknowns, point_forces, noise,
                               dynamic=dynamic, walk=walk)
     rows = good = 0
+    last = None  # the last good row's time
     first: list[list[str]] = []
     for i, raw in enumerate(reader, start=1):
         if not any(c.strip() for c in raw):
@@ -245,6 +246,11 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
             first.append(raw)
             check_units(f"{source} (its first {len(first)} rows)", columns, robot, first)
         s = parse_row(i, raw, columns, robot)
+        if not s.error and s.time is not None:  # rows in time order (a file's rule)
+            if last is not None and s.time < last:
+                s = replace(s, error=f"time {s.time:g} s is before the row before ({last:g} s)")
+            else:
+                last = s.time
         r = None if s.error else online.update(s.displacements, s.tensions, s.time, s.sliding)
         if r is None and on_skip:
             on_skip(s)

@@ -477,7 +477,8 @@ def ellipsoids(entries, path):
     ax.set_xlabel("F_x (gF)")
     ax.set_ylabel("F_y (gF)")
     ax.set_zlabel("F_z (gF)")
-    ax.set_title("Estimated tip forces (2-σ ellipsoids)")
+    ax.set_title("Estimated tip forces (2-σ ellipsoids; a small one\nhides inside a larger: "
+                 "their sizes at the right)", fontsize=9)
     fig.suptitle("3-D tip forces estimated from three tendons under per-tendon errors")
     ax.legend(handles=[Line2D([], [], ls="", marker="o", color="black", label="applied")]
               + [Line2D([], [], color=COLOURS[s], lw=2, label=f"{s} error") for s in SOURCES],
@@ -558,9 +559,11 @@ def location_profile(result, path):
     return _save(fig, path, tight=False)
 
 
-def calibration(fit, path):
+def calibration(fit, path, source: str | None = None):
     """Per snapshot: the misfit after the fit and, with cross-validation, the error of its
-    prediction by the parameters fitted without it (marker and tendon-length errors in mm)."""
+    prediction by the parameters fitted without it (marker and tendon-length errors in mm);
+    ``source`` (e.g. the snapshots file) goes in the title with the robot's name and the
+    parameters fitted."""
     kinds = [(col, kind) for col, kind in enumerate(("marker", "displacement"))
              if any(e[col] is not None for e in fit.snapshot_errors)]
     fig, axes = plt.subplots(len(kinds), 1, figsize=(7, 2.8 * len(kinds)), squeeze=False)
@@ -586,8 +589,11 @@ def calibration(fit, path):
             ax.xaxis.set_major_locator(MaxNLocator(nbins=15, integer=True))
         ax.legend(fontsize=8, loc="upper center", ncol=2)
     axes[-1, 0].set_xlabel("snapshot")
-    axes[0, 0].set_title("Calibration: per-snapshot error" +
-                         (" and leave-one-out prediction" if fit.crossval else ""))
+    fitted = ", ".join(f"{k} = {v:.4g}" for k, v in fit.parameters.items())
+    what = "per-snapshot error" + (" and leave-one-out prediction" if fit.crossval else "")
+    axes[0, 0].set_title("\n".join([
+        f"Calibration of {fit.robot.name}" + (f" from {source}" if source else ""),
+        f"fitted {fitted}", what]), fontsize=9)
     fig.tight_layout()
     return _save(fig, path)
 

@@ -197,7 +197,22 @@ def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sampl
                if any(c.strip() for c in raw)]
     if not samples:
         raise ReadingsError(f"{path}: no data rows below the header")
+    if error := time_order_error(path, samples):
+        raise ReadingsError(error)
     return columns.measured, samples
+
+
+def time_order_error(source, samples: Sequence[Sample]) -> str | None:
+    """Why a log's rows are not in time order (a row stamped before the row before it, e.g.
+    two logs joined), or None: its rows are estimated in their order, each tendon's friction
+    following them."""
+    rows = [s for s in samples if s.time is not None and not s.error]
+    for a, b in zip(rows, rows[1:]):
+        if b.time < a.time:
+            return (f"{source}: row {b.row}: time {b.time:g} s is before the row before "
+                    f"({a.time:g} s): a log's rows must be in time order (each tendon's "
+                    f"friction follows them); sort the rows or split the log")
+    return None
 
 
 def check_units(path, columns: Columns, robot: Robot, rows):

@@ -5,6 +5,7 @@ when asked, so that an experiment can be rehearsed before it is run (:func:`simu
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
@@ -21,7 +22,7 @@ from .statics import shape_outputs
 CHUNK = 250
 
 #: the default integration step, s (samples between steps are interpolated)
-MAX_STEP = 2e-3
+MAX_STEP = inputs.MAX_STEP
 
 #: the friction state a direction sets (NaN: the tension history decides)
 STATES = {"in": 1.0, "out": -1.0, "follow": np.nan}
@@ -118,7 +119,10 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     ``tensions``: {tendon: N} constant, or {tendon: (times, values)} linear between the rows
     and held after the last (tendons not named are slack); ``point_forces``: [(X, f)] with f
     a global force (N) or ``(times, forces (k, 3))``. TR-BDF2 steps of ``max_step`` s (halved
-    where a solve fails); samples between steps by cubic Hermite interpolation of q and q̇.
+    where a solve fails; a warning where it is coarse for the rod's relaxation time,
+    :func:`~tendonsense.inputs.coarse_step`); samples between steps by cubic Hermite
+    interpolation of q and q̇.
+    The last sample is at ``duration``, also where ``output_dt`` does not divide it.
     ``at``: sample at these times (s, increasing, in (0, duration]) instead of every
     ``output_dt`` (e.g. a log's own time stamps). ``inertia=False`` drops ``M q̈`` and
     ``C q̇`` (the quasi-static limit with damping; needs ``[rod] damping`` > 0).
@@ -137,6 +141,10 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
         raise ValueError("duration, output_dt and max_step must be > 0")
     if at is None and output_dt > duration:
         raise ValueError(f"output_dt {output_dt:g} s is longer than the duration {duration:g} s")
+    if max_step > duration:
+        raise ValueError(f"max_step {max_step:g} s is longer than the duration {duration:g} s")
+    if coarse := inputs.coarse_step(robot, max_step):
+        warnings.warn(coarse, stacklevel=2)
     if not inertia and robot.rod.damping <= 0:
         raise ValueError("without inertia the motion needs [rod] damping > 0 (with neither, "
                          "every instant is the static equilibrium: use solve)")
@@ -177,9 +185,12 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     nq = model.nq
     q = np.zeros(nq) if q0 is None else np.asarray(q0, float).reshape(nq)
     if at is None:
-        # (0.35, not k × 0.01 = 0.35000000000000003, in the readings' time column)
+        # (0.35, not k × 0.01 = 0.35000000000000003, in the readings' time column); the
+        # last row at the duration, also where output_dt does not divide it
         times = np.round(np.arange(1, int(np.floor(duration / output_dt + 1e-9)) + 1)
                          * output_dt, 12)
+        if times[-1] < duration - 1e-9 * output_dt:
+            times = np.append(times, duration)
     else:
         times = np.asarray(at, float).reshape(-1)
         if (times.size == 0 or not np.all(np.isfinite(times)) or times[0] <= 0
