@@ -16,7 +16,7 @@ from conftest import ROOT
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 #: files that the examples themselves write before another example reads them
 WRITTEN = {"fitted.toml", "estimates.csv", "live.csv", "solve.png", "estimate.png", "motion.csv",
-           "step.csv"}
+           "step.csv", "short.toml"}
 
 
 def python_blocks(page: Path) -> list[str]:

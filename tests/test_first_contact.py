@@ -901,7 +901,10 @@ def test_every_error_line_has_one_form(tmp_path):
              "tendonsense solve: error: --plot given twice"),
             (("fk", PROTOTYPE, "--displacement", "t1=-5"), 1,
              "tendonsense fk: error: displacement t1 = -5 m pulls in more"),
-            (("bogus",), 2, "tendonsense: error: argument COMMAND: invalid choice")):
+            (("bogus",), 2, "tendonsense: error: argument COMMAND: invalid choice"),
+            (("sweep", PROTOTYPE, "sets.csv", "-o", "r.csv", "--plot", "r.png"), 2,
+             "tendonsense sweep: error: unrecognized arguments: --plot r.png (see tendonsense "
+             "sweep --help)")):
         rc, err, _ = refused_before_jax(*args, cwd=tmp_path)
         assert rc == status and err.startswith(line) and len(err.splitlines()) == 1, err
 
@@ -934,3 +937,73 @@ def test_a_coordinate_that_rounds_to_zero_is_printed_without_a_sign_slip():
     from tendonsense.cli import _signed
     assert [_signed(v, 4) for v in (-1e-7, 0.0, -0.00006, 0.12345)] == [
         "+0.0000", "+0.0000", "-0.0001", "+0.1235"]
+
+
+def test_a_figure_or_fitted_file_of_the_wrong_kind_is_refused_before_computing(tmp_path):
+    """--plot a.txt (matplotlib writes no .txt) and identify -o fitted.png (TOML under an
+    image's name): refused before JAX, nothing written; a figure in another format drawn."""
+    snaps = ROOT / "examples" / "tutorial" / "snapshots.csv"
+    damped = ROOT / "examples" / "paper_prototype_damped.toml"
+    for args, why in (
+            (("solve", PROTOTYPE, "--tension", "t1=2", "--plot", "a.txt"),
+             "--plot a.txt: .txt is not a figure format"),
+            (("identify", PROTOTYPE, "--snapshots", snaps, "-o", "f.toml", "--plot", "c.txt"),
+             "--plot c.txt: .txt is not a figure format"),
+            (("simulate", damped, "--tension", "t1=2", "--duration", "0.1", "-o", "s.csv",
+              "--plot", "m.txt"), "--plot m.txt: .txt is not a figure format"),
+            (("identify", PROTOTYPE, "--snapshots", snaps, "-o", "fitted.png"),
+             "-o/--fitted-robot fitted.png: the fitted robot is a robot file, written as "
+             "TOML")):
+        rc, err, jax_loaded = refused_before_jax(*args, cwd=tmp_path)
+        assert rc == 1 and why in err and not jax_loaded and len(err.splitlines()) == 1, err
+    assert list(tmp_path.iterdir()) == []
+    p = cli("solve", PROTOTYPE, "--tension", "t1=2", "--plot", "a.PDF", cwd=tmp_path)
+    assert p.returncode == 0 and (tmp_path / "a.PDF").read_bytes().startswith(b"%PDF")
+
+
+def test_a_spreadsheets_byte_order_mark_is_read_and_other_text_refused(prototype, tmp_path):
+    """A CSV saved as "CSV UTF-8" (a byte-order mark before the header) reads as without it;
+    a file that is not UTF-8 is refused with one line naming it."""
+    from tendonsense.readings import read_parameter_sets, read_readings
+    plain = (ROOT / "examples" / "tutorial" / "readings.csv").read_text()
+    marked = tmp_path / "marked.csv"
+    marked.write_bytes("\ufeff".encode() + plain.replace("\n", "\r\n").encode())
+    assert read_readings(marked, prototype) == read_readings(
+        ROOT / "examples" / "tutorial" / "readings.csv", prototype)
+    sets = tmp_path / "sets.csv"
+    sets.write_bytes(b"\xef\xbb\xbftension_t1\n2\n")
+    assert len(read_parameter_sets(sets, prototype).rows) == 1
+    latin = tmp_path / "latin.csv"
+    latin.write_bytes(b"time,tension_t1\n0,1.9\n0.5,2\xb0\n")
+    rc, err, jax_loaded = refused_before_jax("simulate", PROTOTYPE, "--tensions", latin,
+                                             "--duration", "1", "-o", tmp_path / "s.csv")
+    assert rc == 1 and not jax_loaded and len(err.splitlines()) == 1, err
+    assert f"{latin}: not UTF-8 text: save it as CSV in UTF-8" in err
+
+
+def test_a_damping_fit_names_the_rows_it_leaves_out(tmp_path):
+    """identify --readings with rows the reader skips (a negative tension): each named on
+    standard error, as estimate --readings does, not left out silently."""
+    log = tmp_path / "step.csv"
+    log.write_text("time,tension_t1,tension_t2,tension_t3,displacement_t1\n"
+                   "0,1.9,0,0,-0.001\n0.01,-1.9,0,0,-0.001\n0.02,2.1,0,0,-0.0012\n"
+                   "0.03,-2.2,0,0,-0.0013\n0.04,2.2,0,0,-0.0013\n")
+    p = cli("identify", ROOT / "examples" / "paper_prototype_damped.toml", "--readings", log,
+            "--param", "damping", cwd=tmp_path)
+    lines = p.stderr.splitlines()
+    assert lines[0] == (f"tendonsense: {log}: row 2 skipped: tension t1 = -1.9 N is negative "
+                        f"(a tendon cannot push; slack is 0)")
+    assert lines[1].startswith(f"tendonsense: {log}: row 4 skipped: tension t1 = -2.2 N")
+    assert f"from {log} (3 rows, 2 skipped)" in p.stdout  # (too short a log to pin it down)
+
+
+def test_an_undamped_simulation_says_it_rings(tmp_path):
+    """simulate on a robot without damping: a note on standard error (its log rings on);
+    with damping none."""
+    for robot, noted in ((PROTOTYPE, True),
+                         (ROOT / "examples" / "paper_prototype_damped.toml", False)):
+        p = cli("simulate", robot, "--tension", "t1=2", "--duration", "0.02", "-o",
+                tmp_path / "s.csv")
+        assert p.returncode == 0, p.stderr
+        assert ("has no damping ([rod] damping = 0): nothing takes the motion's energy out"
+                in p.stderr) == noted, p.stderr

@@ -107,14 +107,18 @@ def test_failed_results_are_stamped(solved, prototype, failed):
 def test_calibration_errors_in_mm(monkeypatch, tmp_path):
     monkeypatch.setattr(plotting, "_save", lambda fig, path: fig)
     fit = SimpleNamespace(snapshot_errors=[(0.001, 2e-5), (0.002, 3e-5)], crossval=None,
-                          parameters={"young_modulus": 1.0e6}, robot=SimpleNamespace(name="proto"))
+                          parameters={"young_modulus": 1.0e6}, sigma={"young_modulus": 2e4},
+                          robot=SimpleNamespace(name="proto"), warning="far off", misfit=3.0)
     fig = plotting.calibration(fit, tmp_path / "c.png", "snaps.csv (2 snapshots)")
     markers, lengths = fig.axes
     plt.close(fig)
     assert "(mm)" in markers.get_ylabel() and "(mm)" in lengths.get_ylabel()
-    # the title says what was fitted, to what
-    assert markers.get_title().startswith("Calibration of proto from snaps.csv (2 snapshots)\n"
-                                          "fitted young_modulus = 1e+06\n")
+    # the title says what was fitted (± 1 σ, units), to what, and a warning given
+    assert markers.get_title() == ("Calibration of proto from snaps.csv (2 snapshots)\n"
+                                   "fitted young_modulus = 1e+06 ± 2e+04 Pa (1 σ)\n"
+                                   "per-snapshot error\n"
+                                   "WARNING printed with the fit: residuals 3 × the noise "
+                                   "assumed")
     assert [p.get_height() for p in lengths.patches] == pytest.approx([0.02, 0.03])
 
 

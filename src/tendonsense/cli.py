@@ -80,6 +80,15 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, no usage dump
         raise UsageError(f"{self.prog}: {message}")
 
+    def parse_args(self, args=None, namespace=None):
+        """As argparse's, an unrecognized argument named with the command it was given to."""
+        known, extras = self.parse_known_args(args, namespace)
+        if extras:
+            prog = " ".join(filter(None, (self.prog, getattr(known, "command", None))))
+            raise UsageError(f"{prog}: unrecognized arguments: {' '.join(extras)} (see {prog} "
+                             f"--help)")
+        return known
+
     def add_argument(self, *names, **kwargs):
         if names and names[0].startswith("-") and kwargs.get("action", "store") == "store":
             kwargs["action"] = _Once
@@ -625,6 +634,24 @@ def _check(args, robot) -> None:
             error := inputs.marker_noise_error(robot, "--marker-noise", args.marker_noise)):
         raise ValueError(error)
     _not_an_input(args)
+    _file_kinds(args)
+
+
+def _file_kinds(args) -> None:
+    """A figure's suffix names a format matplotlib writes, a fitted robot's is .toml."""
+    plot = getattr(args, "plot", None)
+    if plot and (kind := Path(plot).suffix.lower()[1:]) and kind not in FIGURE_FORMATS:
+        raise ValueError(f"--plot {plot}: .{kind} is not a figure format (one of "
+                         f"{', '.join('.' + f for f in FIGURE_FORMATS)})")
+    fitted = getattr(args, "fitted_robot", None)
+    if fitted and Path(fitted).suffix.lower() != ".toml":
+        raise ValueError(f"-o/--fitted-robot {fitted}: the fitted robot is a robot file, "
+                         f"written as TOML: name it *.toml")
+
+
+#: the suffixes of the figure formats matplotlib writes (a figure without one is a PNG)
+FIGURE_FORMATS = ("png", "pdf", "svg", "svgz", "eps", "ps", "jpg", "jpeg", "tif", "tiff",
+                  "webp")
 
 
 #: a command's output files and input files (argument name, as the user knows it)
@@ -732,8 +759,6 @@ def _check_simulate(args, robot):
     if args.max_step > args.duration:
         raise ValueError(f"--max-step {args.max_step:g} s is longer than --duration "
                          f"{args.duration:g} s")
-    if coarse := inputs.coarse_step(robot, args.max_step):
-        print(f"tendonsense simulate: warning: {coarse}", file=sys.stderr)
     if args.no_inertia and robot.rod.damping <= 0:
         raise ValueError(f"--no-inertia needs [rod] damping > 0 in {args.robot} (without "
                          f"inertia or damping every instant is the static equilibrium: use "
@@ -1282,11 +1307,10 @@ def _counts(samples: int, converged: int, skipped: int) -> str:
             + (f"{failed} not converged, " if failed else "") + f"{skipped} skipped")
 
 
-def _more_skipped(log, n: int):
+def _more_skipped(log, n: int, why: str = " (the output's note column says why)"):
     """The line counting a log's skipped rows beyond those named."""
     if n > 0:
-        print(f"tendonsense: {log}: {n} more rows skipped (the output's note column says why)",
-              file=sys.stderr)
+        print(f"tendonsense: {log}: {n} more rows skipped{why}", file=sys.stderr)
 
 
 def _logs(args, robot) -> int:
@@ -1355,7 +1379,8 @@ def _stream(args, robot, noise) -> bool:
             viewer.push(r, tensions=s.tensions, forces=forces, unknowns=args.unknown,
                         time_s=s.time, note="" if r is not None else s.error)
 
-    fh = sys.stdin if args.readings == "-" else open(args.readings, newline="")
+    fh = (sys.stdin if args.readings == "-"
+          else open(args.readings, newline="", encoding=rd.CSV_ENCODING))
     viewer = None
     lines, forces = fh, _point_forces(args)
     if args.view:
@@ -1485,19 +1510,12 @@ def _experiments(args, robot) -> bool:
     return summary["converged"] == summary["rows"]
 
 
-PARAMETER_WORDS = {"young_modulus": ("Young's modulus E", " Pa"),
-                   "density": ("density ρ", " kg/m³"),
-                   "friction": ("friction coefficient μ", ""),
-                   "damping": ("damping η (Kelvin–Voigt)", " Pa·s")}
-
-
 def _mm(v):
     return "—" if v is None else f"{v * 1e3:.3f} mm"
 
 
 def _parameter_text(k: str, v: float, sigma: float | None = None) -> str:
-    label, unit = PARAMETER_WORDS.get(k, (f"friction coefficient μ of tendon "
-                                          f"{k.partition('_')[2]}", ""))
+    label, unit = inputs.parameter_words(k)
     band = "" if sigma is None else f" ± {sigma:.2g}{unit} (1 σ)"
     return f"{label} ({k}): {v:.6g}{unit}{band}"
 
@@ -1523,14 +1541,20 @@ def _fitted_header(args, robot, fit, source: str) -> list[str]:
 
 def _identify(args, robot) -> bool:
     from .identification import identify, identify_damping
-    from .readings import write_text_atomic
+    from .readings import SKIPPED_SHOWN, write_text_atomic
     from .robot import fitted_toml
     prog = _Progress(args, "identify")
     if args.readings is not None:
         fit = identify_damping(robot, args.log[1], _point_forces(args),
                                inertia=not args.no_inertia, marker_noise=args.marker_noise,
                                length_noise=args.length_noise, progress=prog)
-        source = f"{args.readings} ({len(args.log[1])} rows)"
+        skipped = [r for r in args.log[1] if r.error]
+        for r in skipped[:SKIPPED_SHOWN]:
+            print(f"tendonsense: {args.readings}: row {r.row} skipped: {r.error}",
+                  file=sys.stderr)
+        _more_skipped(args.readings, len(skipped) - SKIPPED_SHOWN, "")
+        source = (f"{args.readings} ({len(args.log[1]) - len(skipped)} rows"
+                  + (f", {len(skipped)} skipped" if skipped else "") + ")")
     else:
         fit = identify(robot, args.snapshots_read, args.param or inputs.DEFAULT_PARAMETERS,
                        progress=prog, marker_noise=args.marker_noise,
@@ -1590,6 +1614,13 @@ def _identify(args, robot) -> bool:
 def _simulate(args, robot) -> bool:
     from .readings import write_csv_atomic
     from .simulation import simulate
+    if coarse := inputs.coarse_step(robot, args.max_step):
+        print(f"tendonsense simulate: warning: {coarse}", file=sys.stderr)
+    if robot.rod.damping <= 0 and not args.no_inertia:
+        print(f"tendonsense simulate: note: {args.robot} has no damping ([rod] damping = 0): "
+              f"nothing takes the motion's energy out and the rod rings on, sampled every "
+              f"--output-dt (a robot's damping: identify --readings LOG --param damping)",
+              file=sys.stderr)
     q0 = None
     if args.from_equilibrium:
         from .forward import solve

@@ -18,6 +18,7 @@ import numpy as np
 
 from . import inputs
 from .inputs import GravityUnknown, PointForceUnknown
+from .readings import CSV_ENCODING
 from .robot import Robot
 
 #: the columns every experiments table has (``force_X``, ``direction``, ``paper_estimate``
@@ -94,7 +95,7 @@ def read_experiments(path: str | Path, robot: Robot) -> list[Experiment]:
     """Every row of the experiments table at ``path``, checked against ``robot`` (no solve):
     a ValueError naming the file, the row and what is wrong."""
     try:
-        with open(path, newline="") as fh:
+        with open(path, newline="", encoding=CSV_ENCODING) as fh:
             reader = csv.DictReader(fh, restval="")
             rows = list(reader)
             header = reader.fieldnames

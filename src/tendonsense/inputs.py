@@ -506,6 +506,19 @@ def parameter_names(robot: Robot) -> tuple[str, ...]:
     return (*PARAMETERS, *(f"friction_{n}" for n in robot.tendon_names))
 
 
+#: a fitted parameter's words and unit (with its leading space)
+PARAMETER_WORDS = {"young_modulus": ("Young's modulus E", " Pa"),
+                   "density": ("density ρ", " kg/m³"),
+                   "friction": ("friction coefficient μ", ""),
+                   "damping": ("damping η (Kelvin–Voigt)", " Pa·s")}
+
+
+def parameter_words(name: str) -> tuple[str, str]:
+    """(words, unit) of a parameter ``identify`` fits (``friction_<tendon>`` included)."""
+    return PARAMETER_WORDS.get(name, (f"friction coefficient μ of tendon "
+                                      f"{name.partition('_')[2]}", ""))
+
+
 #: the longest integration step that resolves the damping, in relaxation times τ = 3η/E (a
 #: step of τ/3 misses the prototype's length change by 2 %, τ/15 by 0.02 %)
 STEP_PER_TAU = 0.2

@@ -21,7 +21,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from .forward import model_for  # noqa: E402
-from .inputs import EDGE  # noqa: E402
+from .inputs import EDGE, parameter_words  # noqa: E402
 from .kinematics import frames_fn  # noqa: E402
 from .readings import write_bytes_atomic  # noqa: E402
 from .result import Result  # noqa: E402
@@ -589,11 +589,16 @@ def calibration(fit, path, source: str | None = None):
             ax.xaxis.set_major_locator(MaxNLocator(nbins=15, integer=True))
         ax.legend(fontsize=8, loc="upper center", ncol=2)
     axes[-1, 0].set_xlabel("snapshot")
-    fitted = ", ".join(f"{k} = {v:.4g}" for k, v in fit.parameters.items())
+    fitted = ", ".join(
+        f"{k} = {v:.4g}" + ("" if fit.sigma.get(k) is None else f" ± {fit.sigma[k]:.2g}")
+        + parameter_words(k)[1] for k, v in fit.parameters.items())
     what = "per-snapshot error" + (" and leave-one-out prediction" if fit.crossval else "")
+    if fit.warning:  # said on the figure too, not on standard error alone
+        what += "\nWARNING printed with the fit" + (
+            f": residuals {fit.misfit:.2g} × the noise assumed" if fit.misfit else "")
     axes[0, 0].set_title("\n".join([
         f"Calibration of {fit.robot.name}" + (f" from {source}" if source else ""),
-        f"fitted {fitted}", what]), fontsize=9)
+        textwrap.fill(f"fitted {fitted} (1 σ)", 80), what]), fontsize=9)
     fig.tight_layout()
     return _save(fig, path)
 

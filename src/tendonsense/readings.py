@@ -84,12 +84,19 @@ class Sample:
 
 
 def read_csv_rows(path: Path, error: type[Exception]) -> list[list[str]]:
-    """All rows of a CSV file; an unreadable file raises ``error`` naming it."""
+    """All rows of a CSV file (UTF-8, with or without the byte-order mark a spreadsheet
+    writes); an unreadable file raises ``error`` naming it."""
     try:
-        with open(path, newline="") as fh:
+        with open(path, newline="", encoding=CSV_ENCODING) as fh:
             return list(csv.reader(fh))
     except OSError as exc:
         raise error(f"{path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise error(f"{path}: not UTF-8 text: save it as CSV in UTF-8") from None
+
+
+#: how CSV files are read: UTF-8, a leading byte-order mark dropped
+CSV_ENCODING = "utf-8-sig"
 
 
 @dataclass(frozen=True)
@@ -280,7 +287,7 @@ def motion_step_error(source, samples: Sequence[Sample],
 
 def has_time(path: str | Path) -> bool:
     """Whether a readings log's header has a ``time`` column."""
-    with open(path, newline="") as fh:
+    with open(path, newline="", encoding=CSV_ENCODING) as fh:
         return "time" in [c.strip() for c in next(csv.reader(fh), [])]
 
 
