@@ -1545,14 +1545,14 @@ def _identify(args, robot) -> bool:
     from .robot import fitted_toml
     prog = _Progress(args, "identify")
     if args.readings is not None:
-        fit = identify_damping(robot, args.log[1], _point_forces(args),
-                               inertia=not args.no_inertia, marker_noise=args.marker_noise,
-                               length_noise=args.length_noise, progress=prog)
         skipped = [r for r in args.log[1] if r.error]
         for r in skipped[:SKIPPED_SHOWN]:
             print(f"tendonsense: {args.readings}: row {r.row} skipped: {r.error}",
                   file=sys.stderr)
         _more_skipped(args.readings, len(skipped) - SKIPPED_SHOWN, "")
+        fit = identify_damping(robot, args.log[1], _point_forces(args),
+                               inertia=not args.no_inertia, marker_noise=args.marker_noise,
+                               length_noise=args.length_noise, progress=prog)
         source = (f"{args.readings} ({len(args.log[1]) - len(skipped)} rows"
                   + (f", {len(skipped)} skipped" if skipped else "") + ")")
     else:

@@ -286,9 +286,13 @@ def motion_step_error(source, samples: Sequence[Sample],
 
 
 def has_time(path: str | Path) -> bool:
-    """Whether a readings log's header has a ``time`` column."""
-    with open(path, newline="", encoding=CSV_ENCODING) as fh:
-        return "time" in [c.strip() for c in next(csv.reader(fh), [])]
+    """Whether a readings log's header has a ``time`` column (False for a file that is not
+    text: its reading says why)."""
+    try:
+        with open(path, newline="", encoding=CSV_ENCODING) as fh:
+            return "time" in [c.strip() for c in next(csv.reader(fh), [])]
+    except UnicodeDecodeError:
+        return False
 
 
 def log_outputs(logs: Sequence[str | Path], out_dir: str | Path) -> list[Path]:
