@@ -1272,8 +1272,7 @@ def _log(args, robot) -> bool:
             for s, r in zip(samples[first:], estimates):
                 if s.error and shown < rd.SKIPPED_SHOWN:  # the rest counted at the end
                     shown += 1
-                    print(f"tendonsense: {args.readings}: row {s.row} skipped: {s.error}",
-                          file=sys.stderr)
+                    _skipped_row(args.readings, s.row, s.error)
                 writer.writerow(rd.output_row(robot, s, r, len(unknowns), with_shape, where,
                                               follow))
                 good += r.converged
@@ -1307,6 +1306,11 @@ def _counts(samples: int, converged: int, skipped: int) -> str:
             + (f"{failed} not converged, " if failed else "") + f"{skipped} skipped")
 
 
+def _skipped_row(log, row: int, why: str):
+    """The line naming a log's skipped row."""
+    print(f"tendonsense: {log}: row {row} skipped: {why}", file=sys.stderr)
+
+
 def _more_skipped(log, n: int, why: str = " (the output's note column says why)"):
     """The line counting a log's skipped rows beyond those named."""
     if n > 0:
@@ -1338,7 +1342,7 @@ def _logs(args, robot) -> int:
         if s.error:
             print(f"tendonsense: {s.error}", file=sys.stderr)
         for row, why in s.skipped_rows:
-            print(f"tendonsense: {s.log}: row {row} skipped: {why}", file=sys.stderr)
+            _skipped_row(s.log, row, why)
         _more_skipped(s.log, s.skipped - len(s.skipped_rows))
     total = {k: sum(getattr(s, k) for s in done) for k in ("samples", "converged", "skipped")}
     if args.json:
@@ -1370,7 +1374,7 @@ def _stream(args, robot, noise) -> bool:
     def skipped(s):  # the first rows named, the rest counted at the end (as a file's)
         count["skipped"] += 1
         if count["skipped"] <= rd.SKIPPED_SHOWN:
-            print(f"tendonsense: {source}: row {s.row} skipped: {s.error}", file=sys.stderr)
+            _skipped_row(source, s.row, s.error)
 
     def answered(s, r):
         count["rows"] += 1
@@ -1547,8 +1551,7 @@ def _identify(args, robot) -> bool:
     if args.readings is not None:
         skipped = [r for r in args.log[1] if r.error]
         for r in skipped[:SKIPPED_SHOWN]:
-            print(f"tendonsense: {args.readings}: row {r.row} skipped: {r.error}",
-                  file=sys.stderr)
+            _skipped_row(args.readings, r.row, r.error)
         _more_skipped(args.readings, len(skipped) - SKIPPED_SHOWN, "")
         fit = identify_damping(robot, args.log[1], _point_forces(args),
                                inertia=not args.no_inertia, marker_noise=args.marker_noise,

@@ -21,8 +21,8 @@ from .inputs import WALK, check_unknowns
 from .online import OnlineEstimator
 from .readings import (SKIPPED_SHOWN, LogSummary, ReadingsError, Sample, check_units,
                        has_time, located, motion_step_error, output_header, output_row,
-                       output_rows, parse_header, parse_row, read_readings, with_sliding,
-                       write_csv_atomic)
+                       output_rows, parse_header, parse_row, read_readings, time_back,
+                       with_sliding, write_csv_atomic)
 from .robot import Robot
 from .sliding import GIVEN, FrictionHistory, band_range
 from .tendons import turns
@@ -247,8 +247,8 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
             check_units(f"{source} (its first {len(first)} rows)", columns, robot, first)
         s = parse_row(i, raw, columns, robot)
         if not s.error and s.time is not None:  # rows in time order (a file's rule)
-            if last is not None and s.time < last:
-                s = replace(s, error=f"time {s.time:g} s is before the row before ({last:g} s)")
+            if back := time_back(s.time, last):
+                s = replace(s, error=back)
             else:
                 last = s.time
         r = None if s.error else online.update(s.displacements, s.tensions, s.time, s.sliding)

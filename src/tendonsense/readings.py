@@ -215,10 +215,16 @@ def time_order_error(source, samples: Sequence[Sample]) -> str | None:
     following them."""
     rows = [s for s in samples if s.time is not None and not s.error]
     for a, b in zip(rows, rows[1:]):
-        if b.time < a.time:
-            return (f"{source}: row {b.row}: time {b.time:g} s is before the row before "
-                    f"({a.time:g} s): a log's rows must be in time order (each tendon's "
-                    f"friction follows them); sort the rows or split the log")
+        if back := time_back(b.time, a.time):
+            return (f"{source}: row {b.row}: {back}: a log's rows must be in time order (each "
+                    f"tendon's friction follows them); sort the rows or split the log")
+    return None
+
+
+def time_back(time: float, last: float | None) -> str | None:
+    """Why a row stamped ``time`` cannot follow one stamped ``last`` (None: it can)."""
+    if last is not None and time < last:
+        return f"time {time:g} s is before the row before ({last:g} s)"
     return None
 
 
