@@ -330,6 +330,7 @@ def test_a_sweep_of_paid_out_tendons(where, client, prototype, tmp_path, capsys)
                      "--sliding", "t1=out", *extra])
     assert code == 0 and json.loads(capsys.readouterr().out)["converged"] == 12
     rows = list(csv.DictReader(open(out)))
+    assert {r["sliding_t1"] for r in rows} == {"out"}  # the results say how they were made
     for k in (0, 5, 11):
         robot = prototype.with_parameters(young_modulus=E[k], friction={"t1": mu[k]})
         loads = [(0.25, (0, 0, -f[k]))]

@@ -227,7 +227,8 @@ def test_damping_from_a_step():
     with warnings.catch_warnings():  # the search's trials at a step coarse for them: unsaid
         warnings.simplefilter("error")
         fit = identify_damping(start, rows, load, inertia=False)
-    assert fit.converged and not fit.note and "coarse" not in fit.warning
+    assert fit.converged and not fit.note
+    assert "coarse" not in fit.warning and "not start at rest" not in fit.warning
     assert fit.parameters["damping"] == pytest.approx(eta, rel=1e-3)
     assert fit.displacement_rmse < 1e-7 and fit.robot.rod.damping == fit.parameters["damping"]
     rows, load, _ = _step_log(damped, 1e-4, seed=1)
@@ -237,6 +238,18 @@ def test_damping_from_a_step():
     still, load, _ = _step_log(damped, ramp=([0.0], [2.0]))
     with pytest.raises(SnapshotError, match="cannot be identified"):
         identify_damping(start, still, load, inertia=False)
+
+
+def test_a_damping_log_that_starts_in_motion_is_said_to(capsys):
+    """The step's log from 0.3 s on (halfway up the ramp): the fit simulates from the rest
+    shape of its first row's tensions, which the robot is not in; the warning says so."""
+    from tendonsense.identification import identify_damping
+    damped = load_robot(ROOT / "examples" / "paper_prototype_damped.toml")
+    rows, load, _ = _step_log(damped)
+    fit = identify_damping(damped.with_parameters(damping=0.0), rows[30:], load,
+                           inertia=False)
+    assert fit.warning.startswith("the log does not start at rest: its first row is a tendon "
+                                  "length "), fit.warning
 
 
 def test_cli_identify_damping(tmp_path):

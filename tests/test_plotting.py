@@ -12,7 +12,7 @@ from matplotlib.colors import to_rgba  # noqa: E402
 from tendonsense import plotting  # noqa: E402
 from tendonsense.forward import model_for, solve  # noqa: E402
 from tendonsense.kinematics import frames_fn  # noqa: E402
-from tendonsense.units import newtons  # noqa: E402
+from tendonsense.units import newtons, spread  # noqa: E402
 
 TIP = (0.25, np.array([0.0, 0.0, -0.1]))
 ESTIMATED = (0.25, np.array([0.0, 0.0, -0.0759]), 0.0027)
@@ -82,7 +82,7 @@ def test_labels_name_markers_and_forces_without_overlapping(figure, prototype):
         assert not any(a.overlaps(b) for k, a in enumerate(boxes) for b in boxes[k + 1:])
     labels = texts(side) + texts(top)
     assert newtons(0.1) in labels
-    assert newtons(0.0759, 0.0027) in labels and "±" in newtons(0.0759, 0.0027)
+    assert f"{newtons(0.0759)}\n{spread(0.0027)}" in labels and "±" in spread(0.0027)
     assert "NOT CONVERGED" not in [t.get_text() for t in figure.texts]
     assert {"prototype: shape", "given: t1 tension 2 N"} <= {t.get_text() for t in figure.texts}
 
@@ -135,3 +135,26 @@ def test_location_profile_of_a_failed_estimate_is_stamped(monkeypatch, tmp_path,
     stamp = [t.get_text() for t in fig.texts]
     plt.close(fig)
     assert stamp == ([] if converged else ["NOT CONVERGED", why])
+
+
+def test_a_location_band_wider_than_the_rod_says_so_beside_the_noise(monkeypatch, tmp_path,
+                                                                      solved):
+    """A profile that varies less than the length noise does not place the force: the band
+    (wider than the range) says so and the noise is drawn as a level."""
+    monkeypatch.setattr(plotting, "_save", lambda fig, path, tight=True: fig)
+    X = np.linspace(0.05, 0.25, 9)
+    result = dataclasses.replace(solved, extra=dict(
+        locations=[0.2], location_sigma=[0.317],
+        location_profile={"X": X, "misfit": 1e-6 * (X - 0.2) ** 2}))
+    fig = plotting.location_profile(result, tmp_path / "p.png", length_noise=1e-4)
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    plt.close(fig)
+    assert "estimate ± 1 σ (wider than the range: X not determined)" in labels
+    assert "estimate X = 200.0 ± 317 mm" in labels
+    assert "length noise assumed, 0.1 mm (1 σ)" in labels
+
+
+def test_an_estimated_forces_label_keeps_its_band_on_a_line_of_its_own():
+    e = plotting.Estimated(0.3, (0.04981, 0, 0), 0.1539, None, 0.317)
+    assert plotting._estimate_label(e) == ("0.04981 N (5.1 gF)\n± 0.15 N (15.7 gF)\n"
+                                           "at X = 300 ± 317 mm")

@@ -970,7 +970,8 @@ def _plot_shape(args, robot, result, unknowns=()):
                      for i, u in enumerate(unknowns) if isinstance(u, PointForceUnknown)]
     written = [args.plot]
     if "location_profile" in result.extra:
-        written.append(plotting.location_profile(result, _beside(args.plot, "_location")))
+        written.append(plotting.location_profile(result, _beside(args.plot, "_location"),
+                                                 args.length_noise))
     what = {"solve": "shape under the given tensions (forward statics)",
             "fk": "shape for the given tendon length changes (forward kinematics)",
             "estimate": "shape and forces estimated from tendon readings"}[args.command]
@@ -1383,6 +1384,9 @@ def _stream(args, robot, noise) -> bool:
             viewer.push(r, tensions=s.tensions, forces=forces, unknowns=args.unknown,
                         time_s=s.time, note="" if r is not None else s.error)
 
+    if args.readings == "-" and hasattr(sys.stdin, "reconfigure"):
+        # whatever the locale: a byte that is not UTF-8 skips its row
+        sys.stdin.reconfigure(encoding=rd.CSV_ENCODING, errors="surrogateescape")
     fh = (sys.stdin if args.readings == "-"
           else open(args.readings, newline="", encoding=rd.CSV_ENCODING))
     viewer = None
@@ -1699,12 +1703,14 @@ def _sweep(args, robot) -> bool:
                                   args.task_size or TASK_SIZE, prog, sliding=args.sliding)
         finally:
             prog.close()
-    write_csv_atomic(args.results, *sweep_rows(robot, sets, out))
+    write_csv_atomic(args.results, *sweep_rows(robot, sets, out, _point_forces(args),
+                                               args.sliding))
     n, good = len(sets.rows), int(out.converged.sum())
     if args.json:
         print(json.dumps({"sets": n, "converged": good, "output": str(args.results)}))
     else:
-        print(f"solved {n} parameter sets: {good} converged; wrote {args.results}")
+        print(f"solved {n} parameter set{'' if n == 1 else 's'}: {good} converged; wrote "
+              f"{args.results}")
     return good == n
 
 

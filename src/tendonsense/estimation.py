@@ -23,7 +23,8 @@ from .forward import make_result
 from .inputs import (GravityUnknown, Noise, PointForceUnknown, Unknown,  # noqa: F401 (API)
                      check_noise)
 from .model import Values
-from .problem import Problem, _jacobians_fn, problem, reduced_jacobians  # noqa: F401 (API)
+from .problem import (Problem, _jacobians_fn, confounded, noise_covariance,  # noqa: F401
+                      problem, reduced_jacobians)
 from .result import Result
 from .robot import Robot
 from .sliding import band_range
@@ -248,14 +249,15 @@ def _solve(prob: Problem, drive: Drive, values: Values, x0, budget, total_budget
 def _result(prob: Problem, x, drive, values, T, noise, converged, iterations, res, misfit,
             why=None, **extra) -> Result:
     n = prob.n_magnitudes
-    sens, sigma = _uncertainty(prob, x, drive, values, T, noise)
+    sens, sigma, cov = _uncertainty(prob, x, drive, values, T, noise)
     z = x[prob.model.nq:]
+    note = "; ".join(filter(None, [extra.pop("note", ""), converged and confounded(cov, n)]))
     return make_result(prob.model, x, T, NewtonResult(x, converged, iterations, res.residual, 0),
                        why=why,
                        magnitudes=z[:n], sigma=sigma[:n],
                        sensitivity={k: v[:n] for k, v in sens.items()},
                        extra={"x": x, "length_misfit": misfit, **_located(prob, x, sigma),
-                              **extra})
+                              **extra, **({"note": note} if note else {})})
 
 
 #: points of the misfit profile over X for one located force (per located force for two)
@@ -363,20 +365,17 @@ def _located(prob: Problem, x, sigma) -> dict:
 
 
 def _uncertainty(prob: Problem, x, drive, values, T, noise: Noise):
-    """First-order sensitivity of the magnitudes to every measurement and the 1-σ band:
-    ``dz/dm = −(∂e/∂z)⁺ ∂e/∂m`` with ``e = y(q(z, T)) − y_meas`` (exact for square problems,
-    Gauss–Newton for least squares)."""
+    """First-order sensitivity of the magnitudes to every measurement, the 1-σ band and the
+    covariance: ``dz/dm = −(∂e/∂z)⁺ ∂e/∂m`` with ``e = y(q(z, T)) − y_meas`` (exact for
+    square problems, Gauss–Newton for least squares)."""
     names = prob.robot.tendon_names
     Jz, JT = reduced_jacobians(prob, x, drive, values)
     pinv = np.linalg.pinv(Jz)
-    dz_dy = pinv  # ∂e/∂y_meas = −I
-    dz_dT = -pinv @ JT
-    sens, var = {}, np.zeros(prob.n_z)
-    for k, j in enumerate(prob.measured):
-        sens[f"displacement_{names[j]}"] = dz_dy[:, k]
-        var += (dz_dy[:, k] * noise.length) ** 2
-    for j, name in enumerate(names):
-        if T[j] != 0 or j in prob.measured:
-            sens[f"tension_{name}"] = dz_dT[:, j]
-            var += (dz_dT[:, j] * noise.tension * abs(T[j])) ** 2
-    return sens, np.sqrt(var)
+    dz_dT = -pinv @ JT  # ∂e/∂y_meas = −I: dz/dy_meas = pinv
+    columns = [j for j in range(len(names)) if T[j] != 0 or j in prob.measured]
+    sens = {f"displacement_{names[j]}": pinv[:, k] for k, j in enumerate(prob.measured)}
+    sens.update({f"tension_{names[j]}": dz_dT[:, j] for j in columns})
+    cov = noise_covariance(np, np.concatenate([pinv, dz_dT[:, columns]], axis=1),
+                           len(prob.measured), np.asarray(T, float)[columns], noise.length,
+                           noise.tension)
+    return sens, np.sqrt(np.diag(cov)), cov

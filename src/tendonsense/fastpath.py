@@ -27,7 +27,7 @@ from .compiled import Program
 from .inputs import EDGE, Noise
 from .kinematics import poses, positions
 from .model import Structure, points_at
-from .problem import Problem, noise_band
+from .problem import Problem, noise_covariance
 from .sliding import FIXED_POINT, STATE_TOL, Band, play, pulled, reach
 from .statics import (CACHE_SIZE, Drive, Scaling, admissible, residual, scaling)
 
@@ -527,6 +527,7 @@ class LiveRow(NamedTuple):
     admissible: bool  # strain within the model's range
     markers: np.ndarray  # (n_markers, 3)
     sigma: np.ndarray  # (n_z,) 1-σ band of z
+    covariance: np.ndarray  # (n_z, n_z) of z, whose diagonal's root is ``sigma``
     state: np.ndarray  # (n_t, turns) the friction state it was solved with, at every turn
     code: np.ndarray  # (n_t,) each tendon's direction: +1 in, −1 out, 0 stuck
     z: np.ndarray  # (2**n_t, n_z) the unknowns at each end of the band (NaN: none)
@@ -600,10 +601,11 @@ class Live:
             out = _followed(structure, step, carry, band, d, given, unknowns, values, False,
                             ends, stuck, tension)
             row = out.row
-            sigma = noise_band(jnp, row.dx_dm[nq:], n_m, d.tensions[tcols], length, tension)
+            cov = noise_covariance(jnp, row.dx_dm[nq:], n_m, d.tensions[tcols], length,
+                                   tension)
             return ravel_pytree((out.carry, out.band, out.ends))[0], jnp.concatenate(
                 [jnp.ravel(a).astype(float) for a in (
-                    row.x, row.converged, row.iterations, row.admissible, row.markers, sigma,
+                    row.x, row.converged, row.iterations, row.admissible, row.markers, cov,
                     out.state, out.code, out.z)])
 
         def put(state, x0, reading, loads, unknowns, values, slot):
@@ -632,11 +634,15 @@ class Live:
     def unpack(self, flat: np.ndarray, n_markers: int) -> LiveRow:
         """:meth:`sample`'s packed vector (numpy), in the order it is packed."""
         n_x, n_t, n_z = self.n_x, self.n_t, self.n_x - self.nq
-        ends = np.cumsum((n_x, 1, 1, 1, 3 * n_markers, n_z, n_t * self.turns, n_t)).tolist()
-        x, conv, its, fine, markers, sigma, state, code = (
+        ends = np.cumsum((n_x, 1, 1, 1, 3 * n_markers, n_z * n_z, n_t * self.turns, n_t)
+                         ).tolist()
+        x, conv, its, fine, markers, cov, state, code = (
             flat[a:b] for a, b in zip([0] + ends, ends))
+        cov = cov.reshape(n_z, n_z)
+        with np.errstate(invalid="ignore"):  # a failed sample's may not be finite
+            sigma = np.sqrt(np.diag(cov))
         return LiveRow(x, bool(conv[0]), int(its[0]), bool(fine[0]), markers.reshape(-1, 3),
-                       sigma, state.reshape(n_t, self.turns), code,
+                       sigma, cov, state.reshape(n_t, self.turns), code,
                        flat[ends[-1]:].reshape(2 ** n_t, n_z))
 
 

@@ -42,7 +42,7 @@ from .estimation import estimate_problem
 from .inputs import WALK, Noise, check_noise, sliding as check_sliding
 from .kinematics import poses, positions
 from .model import PointSet, Structure, Values, points_at
-from .problem import Problem, _jacobians_fn
+from .problem import Problem, _jacobians_fn, confounded
 from .result import SampleEstimate
 from .sliding import NOISE_REACH, FrictionHistory, labels
 from .statics import CACHE_SIZE, Drive, Unknowns, admissible, terms
@@ -314,7 +314,9 @@ class MotionFilter:
                 [given.get(k) == "stuck" for k in range(len(friction))]))
         return SampleEstimate(z[:n], sigma[:n], dict(zip(prob.robot.marker_names,
                                                          markers.reshape(-1, 3))),
-                              True, 1, row[:self._row[2]], **more)
+                              True, 1, row[:self._row[2]],
+                              n > 1 and confounded(np.asarray(new.P)[-prob.n_z:, -prob.n_z:], n)
+                              or "", **more)
 
     def _at_rest(self, t, x, P, drive) -> FilterState:
         """A state at rest at ``x = [q; z]`` with covariance ``P`` (of q and z) and the exact

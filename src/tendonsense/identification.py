@@ -490,6 +490,27 @@ class _Fold(NamedTuple):
 TAU_MIN, TAU_POINTS = 1e-4, 13
 
 
+#: a log's first row further than this many noise σ from the rest shape of its tensions is
+#: not at rest (a damping fit simulates from rest there)
+AT_REST = 5.0
+
+
+def _moving_at_start(start, row, measured, markers, length_noise, marker_noise) -> str:
+    """Why a log's first ``row`` is not at rest: its lengths or markers further than
+    :data:`AT_REST` σ from ``start``, the static shape of its tensions ('' if not)."""
+    dy = max((abs(start.displacements[n] - row.displacements[n]) for n in measured),
+             default=0.0)
+    dp = max((float(np.linalg.norm(start.markers[m] - np.asarray(row.markers[m])))
+              for m in markers), default=0.0)
+    if max(dy / length_noise, dp / marker_noise) <= AT_REST:
+        return ""
+    off = [f"{what} {d * 1e3:.2g} mm ({d / noise:.0f} σ)" for what, d, noise in (
+        ("a tendon length", dy, length_noise), ("a marker", dp, marker_noise)) if d > 0]
+    return (f"the log does not start at rest: its first row is {' and '.join(off)} from the "
+            f"static shape of its tensions, where the motion is simulated from; start the log "
+            f"before the robot moves (or drop its first rows until it is still)")
+
+
 def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
                      inertia: bool = True, marker_noise: float = MARKER_NOISE,
                      length_noise: float = LENGTH_NOISE,
@@ -530,6 +551,7 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
     if not start.converged:
         raise SnapshotError(f"the first row's static equilibrium (the motion's start) did not "
                             f"converge: {start.note}")
+    moving = _moving_at_start(start, rows[0], measured, markers, length_noise, marker_noise)
     E = robot.rod.young_modulus
     evaluations = [0]
 
@@ -601,8 +623,9 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
     ratio, warning = misfit_of({"marker": (dp, marker_noise), "length": (dy, length_noise)},
                                1) if dp is not None else (None, "")
     fitted = robot.with_parameters(damping=eta)
-    if coarse := inputs.coarse_step(fitted, MAX_STEP):
-        warning = "; ".join(filter(None, (warning, f"at the fitted damping {coarse}")))
+    coarse = inputs.coarse_step(fitted, MAX_STEP)
+    warning = "; ".join(filter(None, (moving, warning,
+                                      coarse and f"at the fitted damping {coarse}")))
     return Identified({"damping": eta}, *errors(dp, dy), *errors(*initial),
                       bool(found.success) and not edge, evaluations[0],
                       fitted, sigma={"damping": sigma}, note=note,

@@ -17,7 +17,7 @@ from .fastpath import live
 from .filtering import MotionFilter
 from .forward import INADMISSIBLE
 from .inputs import WALK, Noise, check_noise, sliding as check_sliding
-from .problem import Problem
+from .problem import Problem, confounded
 from .result import SampleEstimate
 from .sliding import DIRECTION, GIVEN, band_range
 from .statics import solve_system
@@ -230,7 +230,8 @@ class OnlineEstimator:
         nq, n = prob.model.nq, prob.n_magnitudes
         est = SampleEstimate(x[nq:nq + n], row.sigma[:n],
                              dict(zip(prob.robot.marker_names, row.markers)), True,
-                             row.iterations, x, "", self._ref.locations(x), row.sigma[n:])
+                             row.iterations, x, confounded(row.covariance, n),
+                             self._ref.locations(x), row.sigma[n:])
         if not self._follows:
             return est, row
         est = replace(est, friction_state=row.state[:, -1],

@@ -26,7 +26,7 @@ from .kinematics import frames_fn  # noqa: E402
 from .readings import write_bytes_atomic  # noqa: E402
 from .result import Result  # noqa: E402
 from .robot import Robot  # noqa: E402
-from .units import GF, between, newtons  # noqa: E402
+from .units import GF, between, newtons, spread  # noqa: E402
 
 SOURCES = ("length", "tension", "friction")
 COLOURS = {"length": "tab:blue", "tension": "tab:orange", "friction": "tab:green"}
@@ -266,10 +266,11 @@ def _estimate_label(e: Estimated) -> str:
     """An estimated force's label: its size ± σ, or with a stuck tendon the range it lies in;
     where its location was estimated, that location ± σ."""
     size = float(np.linalg.norm(e.force))
-    text = (newtons(size, e.sigma) if e.band is None else
+    text = (newtons(size) + ("" if e.sigma is None else f"\n{spread(e.sigma)}")
+            if e.band is None else
             f"{newtons(size)} mid-band;\na stuck tendon: {between(*e.band)}")
     if e.X_sigma is not None:
-        text += f"\nat X = {e.X * 1e3:.0f} ± {e.X_sigma * 1e3:.0f} mm (1 σ)"
+        text += f"\nat X = {e.X * 1e3:.0f} ± {e.X_sigma * 1e3:.0f} mm"
     return text
 
 
@@ -530,10 +531,12 @@ def comparison(table: dict[str, list], path):
     return _save(fig, path)
 
 
-def location_profile(result, path):
+def location_profile(result, path, length_noise: float | None = None):
     """The tendon-length misfit over the X of a force of unknown location (each point the best
     magnitudes with the force held there), the estimate and its 1-σ band, as a PNG; stamped
-    NOT CONVERGED (and the reason) when the estimate did not converge."""
+    NOT CONVERGED (and the reason) when the estimate did not converge. ``length_noise`` (m,
+    1 σ), the noise the band assumes, is drawn as a level: a profile that varies less than
+    it does not place the force."""
     prof = result.extra["location_profile"]
     X, misfit = np.asarray(prof["X"]), np.asarray(prof["misfit"]) * 1e3
     if X.ndim != 1:
@@ -544,10 +547,17 @@ def location_profile(result, path):
     fig, ax = plt.subplots(figsize=(6.5, 4))
     ax.plot(X[order] * 1e3, misfit[order], "o-", color="tab:blue", ms=3,
             label="best fit with the force held at X")
+    span = (X.max() - X.min()) * 1e3
+    wide = 2 * sig * 1e3 > span
     ax.axvspan((loc - sig) * 1e3, (loc + sig) * 1e3, color="tab:red", alpha=0.15,
-               label="estimate ± 1 σ")
-    ax.axvline(loc * 1e3, color="tab:red", label=f"estimate X = {loc * 1e3:.1f} mm")
-    pad = 0.03 * (X.max() - X.min()) * 1e3  # an estimate at an end of the range stays visible
+               label="estimate ± 1 σ" + (" (wider than the range: X not determined)"
+                                         if wide else ""))
+    ax.axvline(loc * 1e3, color="tab:red",
+               label=f"estimate X = {loc * 1e3:.1f} ± {sig * 1e3:.3g} mm")
+    if length_noise:
+        ax.axhline(length_noise * 1e3, color="0.4", ls=":",
+                   label=f"length noise assumed, {length_noise * 1e3:g} mm (1 σ)")
+    pad = 0.03 * span  # an estimate at an end of the range stays visible
     ax.set_xlim(X.min() * 1e3 - pad, X.max() * 1e3 + pad)
     ax.set_xlabel("X where the force acts (mm from the base)")
     ax.set_ylabel("RMS tendon-length misfit (mm)")

@@ -169,9 +169,54 @@ def band(dz_dm: np.ndarray, n_lengths: int, tensions: np.ndarray, noise: Noise) 
                           noise.tension)
 
 
+def covariance(dz_dm: np.ndarray, n_lengths: int, tensions: np.ndarray, noise: Noise
+               ) -> np.ndarray:
+    """The covariance (…, n_z, n_z) of the magnitudes whose diagonal's root is :func:`band`
+    (same arguments)."""
+    with np.errstate(all="ignore"):
+        return noise_covariance(np, dz_dm, n_lengths, np.asarray(tensions, float),
+                                noise.length, noise.tension)
+
+
 def noise_band(xp, dz_dm, n_lengths: int, tensions, length, tension):
     """:func:`band` in ``xp`` (numpy, or jax.numpy in a compiled program) with the noise's
     ``length`` (m) and relative ``tension``."""
+    return xp.sqrt((_scaled(xp, dz_dm, n_lengths, tensions, length, tension) ** 2).sum(axis=-1))
+
+
+def noise_covariance(xp, dz_dm, n_lengths: int, tensions, length, tension):
+    """The covariance (…, n_z, n_z) of the unknowns whose diagonal's root is
+    :func:`noise_band` (same arguments)."""
+    s = _scaled(xp, dz_dm, n_lengths, tensions, length, tension)
+    return s @ xp.swapaxes(s, -1, -2)
+
+
+def _scaled(xp, dz_dm, n_lengths, tensions, length, tension):
+    """``dz_dm`` with each measurement's column times its noise (1 σ)."""
     scale = xp.concatenate([xp.full((*tensions.shape[:-1], n_lengths), length),
                             tension * xp.abs(tensions)], axis=-1)
-    return xp.sqrt(((dz_dm * scale[..., None, :]) ** 2).sum(axis=-1))
+    return dz_dm * scale[..., None, :]
+
+
+#: two magnitudes whose estimates correlate beyond this are confounded: the readings fix a
+#: combination of them, not each (each σ is then over 7× what it would be, the other known)
+CONFOUNDED = 0.99
+
+
+def confounded(covariance, n: int) -> str:
+    """A note naming the magnitudes (the first ``n`` unknowns of ``covariance``) that the
+    readings cannot tell apart, pairs correlated beyond :data:`CONFOUNDED`; '' if none."""
+    if n < 2:
+        return ""
+    c = np.asarray(covariance, float)[:n, :n]
+    with np.errstate(all="ignore"):
+        sd = np.sqrt(np.diag(c))
+        rho = c / np.outer(sd, sd)
+    pairs = [(i, j) for i in range(n) for j in range(i + 1, n)
+             if abs(rho[i, j]) > CONFOUNDED]
+    if not pairs:
+        return ""
+    return ("confounded: " + ", ".join(
+        f"magnitudes {i + 1} and {j + 1} (correlation {rho[i, j]:+.4f})" for i, j in pairs)
+        + ": these readings fix a combination of them, not each (hence their 1-σ band); "
+        "measure another tendon or estimate fewer loads")

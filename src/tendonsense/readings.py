@@ -11,7 +11,7 @@ import os
 import secrets
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -92,11 +92,25 @@ def read_csv_rows(path: Path, error: type[Exception]) -> list[list[str]]:
     except OSError as exc:
         raise error(f"{path}: cannot read ({exc.strerror})") from None
     except UnicodeDecodeError:
-        raise error(f"{path}: not UTF-8 text: save it as CSV in UTF-8") from None
+        raise error(f"{path}: {NOT_UTF8}") from None
 
 
 #: how CSV files are read: UTF-8, a leading byte-order mark dropped
 CSV_ENCODING = "utf-8-sig"
+#: what a stream that is not UTF-8 is told (its bytes read as ``surrogateescape``)
+NOT_UTF8 = "not UTF-8 text: save it as CSV in UTF-8"
+
+
+def utf8(cells: Sequence[str]) -> bool:
+    """Whether cells read with ``errors="surrogateescape"`` were UTF-8 (no escaped byte)."""
+    text = "".join(cells)
+    if text.isascii():
+        return True
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 @dataclass(frozen=True)
@@ -114,6 +128,8 @@ def parse_header(header: Sequence[str], robot: Robot, source) -> Columns:
     """Check the header of READINGS.csv: ``time`` (optional), ``tension_<name>``,
     ``displacement_<name>``, optional ``marker_<name>_x/_y/_z``."""
     header = [h.strip() for h in header]
+    if not utf8(header):
+        raise ReadingsError(f"{source}: header: {NOT_UTF8}")
     tendons, markers = robot.tendon_names, robot.marker_names
     _once(source, header, ReadingsError)
     measured = []
@@ -155,6 +171,8 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
     values, sliding, error = {}, {}, None
     if len(raw) != len(header):
         error = f"has {len(raw)} fields, the header has {len(header)}"
+    elif not utf8(raw):
+        error = NOT_UTF8
     else:
         for col, text in zip(header, raw):
             if col.startswith("sliding_"):  # an empty cell: the direction is not known here
@@ -676,12 +694,20 @@ def _load_of(values, columns) -> tuple[float, list[float]]:
     return X, F
 
 
-def sweep_rows(robot: Robot, sets: ParameterSets, result) -> tuple[list[str], list[list]]:
-    """Header and rows of a sweep's RESULTS.csv: each set's own cells, then its markers
-    (``marker_<name>_x/_y/_z``, m), its tendons' length changes (``displacement_<tendon>``,
-    m), ``converged`` and ``solver_note``, why a set is no solution (a
-    :class:`~tendonsense.tracking.BatchResult` ``result``)."""
-    header = (sets.header + [f"marker_{m}_{a}" for m in robot.marker_names for a in AXES]
+def sweep_rows(robot: Robot, sets: ParameterSets, result, point_forces=(),
+               sliding: Mapping[str, str] | None = None) -> tuple[list[str], list[list]]:
+    """Header and rows of a sweep's RESULTS.csv: each set's own cells, the inputs of every set
+    given apart from the table (``point_forces`` [(X, (fx, fy, fz))] as
+    ``point_force_<k>_X/_fx/_fy/_fz``, m and N; ``sliding`` {tendon: direction} as
+    ``sliding_<tendon>``), then its markers (``marker_<name>_x/_y/_z``, m), its tendons' length
+    changes (``displacement_<tendon>``, m), ``converged`` and ``solver_note``, why a set is no
+    solution (a :class:`~tendonsense.tracking.BatchResult` ``result``)."""
+    given = [(f"point_force_{k}_{c}", repr(float(v)))
+             for k, (X, f) in enumerate(point_forces, start=1)
+             for c, v in zip(("X", "fx", "fy", "fz"), (X, *f))]
+    given += [(f"sliding_{t}", d) for t, d in (sliding or {}).items()]
+    header = (sets.header + [c for c, _ in given]
+              + [f"marker_{m}_{a}" for m in robot.marker_names for a in AXES]
               + [f"displacement_{t}" for t in robot.tendon_names]
               + ["converged", "solver_note"])
     rows = []
@@ -691,7 +717,8 @@ def sweep_rows(robot: Robot, sets: ParameterSets, result) -> tuple[list[str], li
                for v in result.markers[m][k]]
         out += [repr(float(result.displacements[t][k])) if ok else ""
                 for t in robot.tendon_names]
-        rows.append(cells + out + ["true" if ok else "false", result.notes[k]])
+        rows.append(cells + [v for _, v in given] + out
+                    + ["true" if ok else "false", result.notes[k]])
     return header, rows
 
 

@@ -101,7 +101,7 @@ class SampleEstimate:
     converged: bool
     iterations: int
     x: np.ndarray
-    note: str = ""  # why a sample is not converged
+    note: str = ""  # why a sample is not converged, or a remark on it (e.g. confounded)
     locations: np.ndarray = field(default_factory=lambda: np.zeros(0))  # located forces' X, m
     location_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
     # per tendon (its anchor's), ±1

@@ -29,6 +29,9 @@ MAX_LENGTH = 10.0
 #: have (below them a value is in MPa or GPa, or in g/cm³)
 MIN_YOUNG_MODULUS = 1e3
 MIN_DENSITY = 10.0
+#: the densest solid's density, kg/m³ (osmium): a denser rod is a unit slip or a fit to loads
+#: in other units
+MAX_DENSITY = 22_590.0
 #: the largest friction coefficient of a tendon in its guides (a larger one is a percentage)
 MAX_FRICTION = 2.0
 #: the largest gravitational acceleration, m/s² (a larger one is in other units)
@@ -48,6 +51,9 @@ def value_error(name: str, v: float) -> str | None:
     if name == "density" and 0 < v < MIN_DENSITY:
         return (f"{v:g} kg/m³ is lighter than any solid (under {MIN_DENSITY:g} kg/m³; "
                 f"densities are in kg/m³, water 1000; 0 leaves out the rod's weight)")
+    if name == "density" and v > MAX_DENSITY:
+        return (f"{v:g} kg/m³ is denser than any solid (osmium: {MAX_DENSITY:g} kg/m³; "
+                f"densities are in kg/m³, water 1000)")
     if name == "friction" and v > MAX_FRICTION:
         return (f"{v:g} is more than any tendon's in its guides (at most {MAX_FRICTION:g}; "
                 f"a coefficient such as 0.3, not a percentage)")

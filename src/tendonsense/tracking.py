@@ -20,7 +20,7 @@ from .inputs import (Noise, check_noise, first_force_error, friction_signs, max_
                      tendon_vector, tension_error)
 from .model import VALUE_NAMES
 from .online import RESCUE_BUDGET, OnlineEstimator
-from .problem import Problem, band  # noqa: F401 (API)
+from .problem import Problem, band, confounded, covariance  # noqa: F401 (API)
 from .result import SampleEstimate, compact_repr
 from .robot import Robot, value_error
 from .sliding import Band, FrictionHistory, labels, turning_program
@@ -140,6 +140,8 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                     np.asarray(x0, float), drives, prob.unknowns, model.values,
                     np.asarray(given[rows], float), Band.of(history), len(run), last_failed))
             sigma = band(tr.dx_dm[:, model.nq:, :], len(meas), T[rows][:, list(tcols)], noise)
+            cov = covariance(tr.dx_dm[:, model.nq:, :], len(meas), T[rows][:, list(tcols)],
+                             noise) if prob.n_magnitudes > 1 else None
             if history is not None:  # a tendon's state and direction are its anchor's
                 states = states[:, :, -1]
                 said = labels(states[:len(run)], mu, bands.phi[:len(run), :, -1], noise.tension,
@@ -151,7 +153,8 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                     out[k] = SampleEstimate(
                         tr.x[j, model.nq:], sigma[j],
                         dict(zip(robot.marker_names, tr.markers[j])), True,
-                        int(tr.iterations[j]), tr.x[j], **friction)
+                        int(tr.iterations[j]), tr.x[j],
+                        "" if cov is None else confounded(cov[j], prob.n_magnitudes), **friction)
                 elif not persistent and last_failed:
                     out[k] = replace(SampleEstimate.failed(
                         prob, "not estimated: the sample before did not converge either",
@@ -184,7 +187,7 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
 
 
 def _from_result(r) -> SampleEstimate:
-    note = "" if r.converged else r.extra.get("note", "did not converge")
+    note = r.extra.get("note", "" if r.converged else "did not converge")
     located = [k for k, v in enumerate(r.extra.get("locations", [])) if v is not None]
     return SampleEstimate(np.asarray(r.magnitudes), np.asarray(r.sigma), dict(r.markers),
                           bool(r.converged), int(r.iterations), np.asarray(r.extra["x"]), note,

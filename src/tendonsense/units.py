@@ -8,10 +8,19 @@ GF = 9.80665e-3
 
 def newtons(value: float, sigma: float | None = None) -> str:
     """A force with its unit and gram-force, e.g. ``0.0759 N (7.7 gF) ± 0.0027 N (0.3 gF)``."""
-    text = f"{value:.4g} N ({value / GF:.1f} gF)"
-    if sigma is not None:
-        text += f" ± {sigma:.2g} N ({sigma / GF:.1f} gF)"
-    return text
+    text = f"{value:.4g} N ({_grams(value)} gF)"
+    return text if sigma is None else f"{text} {spread(sigma)}"
+
+
+def spread(sigma: float) -> str:
+    """A force's 1-σ band, e.g. ``± 0.0027 N (0.3 gF)``."""
+    return f"± {sigma:.2g} N ({_grams(sigma)} gF)"
+
+
+def _grams(force: float) -> str:
+    """Gram-force to 0.1 gF, in powers of ten beyond a tonne (a σ that says "unknown")."""
+    g = force / GF
+    return f"{g:.1f}" if abs(g) < 1e6 else f"{g:.2g}"
 
 
 def between(low: float, high: float, text=newtons) -> str:
