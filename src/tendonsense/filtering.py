@@ -315,8 +315,9 @@ class MotionFilter:
         return SampleEstimate(z[:n], sigma[:n], dict(zip(prob.robot.marker_names,
                                                          markers.reshape(-1, 3))),
                               True, 1, row[:self._row[2]],
-                              n > 1 and confounded(np.asarray(new.P)[-prob.n_z:, -prob.n_z:], n)
-                              or "", **more)
+                              # (the covariance fetched only where there is a pair to compare)
+                              confounded(np.asarray(new.P)[-prob.n_z:, -prob.n_z:], n)
+                              if n > 1 else "", **more)
 
     def _at_rest(self, t, x, P, drive) -> FilterState:
         """A state at rest at ``x = [q; z]`` with covariance ``P`` (of q and z) and the exact
