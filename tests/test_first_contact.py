@@ -378,7 +378,7 @@ def test_a_logs_chunks_done_before_a_failure_are_handed_over(prototype, monkeypa
         raise RuntimeError("the scan failed")
 
     monkeypatch.setattr(logs, "series_chunks", chunks)
-    monkeypatch.setattr(logs, "_stuck_ranges", lambda prob, rows, estimates, noise: [
+    monkeypatch.setattr(logs, "_stuck_ranges", lambda prob, rows, estimates, noise, *a: [
         e.upper() for e in estimates])
     got = []
     with pytest.raises(RuntimeError, match="the scan failed"):

@@ -170,6 +170,32 @@ def _cli(*args):
                           capture_output=True, text=True)
 
 
+def test_a_band_end_goes_on_across_a_logs_chunks(prototype):
+    """A stretch of stuck rows longer than a file log's chunk (100 rows, three tendons read for
+    one force): each end of the band goes on from the row before across the chunk's edge, as
+    the live estimator's does. Started again from the row's own estimate, the paid-out end
+    was not found for a whole chunk (100 ranges left open)."""
+    from tendonsense.logs import CHUNK, estimate_readings
+    from tendonsense.readings import Sample
+    from tendonsense.tracking import solve_batch
+    s = np.arange(1100, 1310) / 2000  # t1 released from 3 N, a growing tip weight
+    T = {"t1": 2.0 - np.cos(2 * np.pi * s), "t2": np.full(s.size, 0.3),
+         "t3": np.full(s.size, 0.3)}
+    made = solve_batch(prototype, T, [(0.25, np.stack([0 * s, 0 * s, -0.2 * s], axis=1))])
+    noise = np.random.default_rng(0).normal(0.0, 1e-4, (s.size, 3))
+    rows = [Sample(j + 1, 0.01 * j, {n: T[n][j] for n in T},
+                   {n: made.displacements[n][j] + noise[j, i] for i, n in enumerate(T)}, {})
+            for j in range(s.size)]
+    got = estimate_readings(prototype, ["t1", "t2", "t3"], rows,
+                            [PointForceUnknown(0.25, (0, 0, -1))])
+    stuck = [j for j, e in enumerate(got) if e.sliding[0] == "stuck"]
+    assert stuck[0] < CHUNK and stuck[-1] >= 2 * CHUNK - 1  # across two edges
+    ranges = np.array([got[j].magnitude_range[0] for j in stuck])
+    assert np.isfinite(ranges).all(), f"{(~np.isfinite(ranges).all(axis=1)).sum()} open"
+    middle = np.array([got[j].magnitudes[0] for j in stuck])
+    assert (ranges[:, 0] <= middle).all() and (middle <= ranges[:, 1]).all()
+
+
 def test_cli(tmp_path):
     r = _cli("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--tension", "t1=2.1",
              "--unknown", "0.25,0,0,-1", "--sliding", "t1=stuck", "--json")

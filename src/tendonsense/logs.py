@@ -30,6 +30,8 @@ from .tracking import SampleEstimate, series_chunks
 
 #: samples per compiled scan of a file log
 CHUNK = 100
+#: chunks a file log's scan may run ahead of their stuck rows' ranges
+AHEAD = 8
 #: a stream's first rows that decide whether a column is in the wrong unit
 UNIT_ROWS = 50
 
@@ -86,17 +88,19 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
         with ThreadPoolExecutor(1) as pool:
             pending: deque = deque()
 
-            def handed(keep: int):  # the chunks with their ranges, but the last ``keep``
-                while len(pending) > keep:
+            def handed(keep: int):  # the chunks whose ranges are done, in order, and
+                # the oldest while more than ``keep`` wait
+                while pending and (len(pending) > keep or pending[0][1].done()):
                     first, ranged = pending.popleft()
                     yield place(first, ranged.result())
 
             try:
+                ends: dict = {}  # each band end's last solution (_stuck_ranges)
                 for first, estimates in chunks:
                     rows = [samples[k] for k in good[first:first + len(estimates)]]
                     pending.append((first, pool.submit(_stuck_ranges, prob, rows, estimates,
-                                                       noise)))
-                    yield from handed(1)
+                                                       noise, first, ends)))
+                    yield from handed(AHEAD)
             except Exception:  # the chunks done before a failure are still handed over
                 yield from handed(0)
                 raise
@@ -106,11 +110,15 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
 
 
 def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
-                  noise: Noise) -> list[SampleEstimate]:
+                  noise: Noise, first: int = 0, ends: dict | None = None
+                  ) -> list[SampleEstimate]:
     """Estimates that followed their tendons' friction history
     (:class:`~tendonsense.sliding.FrictionHistory`), and where a tendon is stuck the range of
     the magnitudes over its band: the stuck rows estimated again as a series with each stuck
-    tendon pulled in and paid out."""
+    tendon pulled in and paid out. ``ends``: each end's last solution and its row (the rows
+    numbered from ``first``), kept from one chunk to the next, so that an end goes on from the
+    row before where a stretch of stuck rows runs on (else from the row's own estimate)."""
+    ends = {} if ends is None else ends
     out = list(estimates)
     states = np.array([e.friction_state for e in out])
     stuck_of = np.array([[d == "stuck" for d in e.sliding] for e in out]).reshape(states.shape)
@@ -120,13 +128,16 @@ def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
     columns = np.flatnonzero(stuck_of[stuck].any(axis=0))
     corners = []
     for signs in itertools.product((-1.0, 1.0), repeat=len(columns)):
+        key = (tuple(columns), signs)
+        row, x = ends.get(key, (None, None))
+        start = x if row == first + stuck[0] - 1 else out[stuck[0]].x
         s = states[stuck].copy()
         for c, sign in zip(columns, signs):
             s[:, c] = np.where(stuck_of[stuck, c], sign, s[:, c])
         got = []
         for _, chunk in series_chunks(prob, [rows[j].displacements for j in stuck],
                                       [rows[j].tensions for j in stuck], noise, CHUNK,
-                                      start=out[stuck[0]].x,
+                                      start=start,
                                       history=FrictionHistory(
                                           prob.model.values.friction,
                                           turns=turns(prob.model.values)),
@@ -134,6 +145,8 @@ def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
             got += chunk
         corners.append([e.magnitudes if e.converged else np.full(prob.n_magnitudes, np.nan)
                         for e in got])
+        if got[-1].converged:
+            ends[key] = (first + stuck[-1], got[-1].x)
     for i, j in enumerate(stuck):
         out[j] = replace(out[j], magnitude_range=band_range(out[j].magnitudes,
                                                             [c[i] for c in corners]))
