@@ -446,6 +446,11 @@ def test_a_header_only_log_is_an_error(tmp_path):
     (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--displacement", "t2=-0.004",
       "--tension", "t1=2", "--tension", "t2=1", "--unknown", "0.2,0,0,-1", "--unknown",
       "0.2,0,0,-2"), 1, "unknowns 1 and 2: one force"),
+    (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--displacement", "t2=-0.004",
+      "--tension", "t1=2", "--tension", "t2=1", "--unknown", "?,0,0,-1", "--sliding",
+      "t1=stuck"), 1, "estimated for forces at known points"),
+    (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--tension", "t1=2", "--unknown",
+      "0.25,0,0,-1", "--sliding", "t2=stuck"), 1, "t2 is slack (0 N)"),
 ])
 def test_a_slip_is_refused_in_one_line_before_jax_starts(tmp_path, args, status, words):
     rc, err, jax_loaded = refused_before_jax(*args, cwd=tmp_path)  # relative outputs land here
@@ -1009,6 +1014,62 @@ def test_an_undamped_simulation_says_it_rings(tmp_path):
                 in p.stderr) == noted, p.stderr
 
 
+def test_the_figure_is_written_when_the_reader_of_standard_output_goes_away(tmp_path):
+    """``solve … --plot s.png | true``: the printing stopped at a closed pipe before the
+    figure was drawn, so no figure and no word; the figure now comes first."""
+    cmd = [sys.executable, "-m", "tendonsense.cli", "solve", str(PROTOTYPE), "--tension",
+           "t1=2", "--plot", str(tmp_path / "s.png")]
+    p = subprocess.run(" ".join(f"'{c}'" for c in cmd) + " | true", shell=True,
+                       capture_output=True, text=True)
+    assert p.returncode == 0 and (tmp_path / "s.png").stat().st_size > 5000, p.stderr
+
+
+def test_a_log_that_starts_with_a_release_is_noted(prototype, tmp_path):
+    """The tutorial's log cut at 4 s, in the middle of t1's release: its first rows read the
+    friction of a pull (12.6 gF for 20 gF, 25 σ off) without a word. The file log says so
+    (and each of many logs in its summary); the whole log, which starts with a pull, and the
+    cut one whose first row gives t1's direction, do not."""
+    from tendonsense.logs import estimate_file
+    from tendonsense.readings import read_readings, released_at_start
+    rows = (ROOT / "examples" / "tutorial" / "readings.csv").read_text().splitlines()
+    cut = tmp_path / "cut.csv"
+    cut.write_text("\n".join([rows[0]] + rows[201:260]) + "\n")
+    note = released_at_start(read_readings(cut, prototype)[1], prototype)
+    assert note.startswith("t1's tension falls from the log's first row (2.489 N at row 1")
+    assert released_at_start(read_readings(ROOT / "examples" / "tutorial" / "readings.csv",
+                                           prototype)[1], prototype) == ""
+    given = tmp_path / "given.csv"
+    given.write_text("\n".join([rows[0] + ",sliding_t1", rows[201] + ",stuck"]
+                               + [r + "," for r in rows[202:260]]) + "\n")
+    assert released_at_start(read_readings(given, prototype)[1], prototype) == ""
+    p = cli("estimate", PROTOTYPE, "--readings", cut, "--unknown", "0.25,0,0,-1", "-o",
+            tmp_path / "o.csv")
+    assert p.returncode == 0 and f"tendonsense: {cut}: note: {note}" in p.stderr
+    assert estimate_file(prototype, cut, tmp_path / "o2.csv", [TIP]).note == note
+
+
+def test_a_simulation_that_did_not_converge_leaves_its_shape_empty(tmp_path):
+    """A sample simulate could not solve was written as the straight rod (its last iterate),
+    which the estimator then read as a converged 0.11 N for 30 N: its lengths and markers are
+    empty, the estimator skips it, and the lines at the end are the last converged sample's."""
+    robot = tmp_path / "short.toml"
+    robot.write_text((ROOT / "examples" / "paper_prototype_damped.toml").read_text()
+                     + "\n[solver]\nmax_iterations = 2\n")
+    log = tmp_path / "sim.csv"
+    p = cli("simulate", robot, "--tension", "t1=2", "--point-force", "0.25,0,0,-30",
+            "--duration", "0.05", "--no-inertia", "-o", log)
+    assert p.returncode == 3 and "marker tip at t = 0 s, the last converged sample" in p.stdout
+    assert "NOT CONVERGED at 5 of 6 samples" in p.stdout and "are empty in" in p.stdout
+    rows = list(csv.DictReader(log.open()))
+    assert rows[0]["displacement_t1"] and rows[0]["marker_tip_z"]
+    assert all(r["displacement_t1"] == r["marker_tip_z"] == "" and r["tension_t1"] == "2.0"
+               for r in rows[1:])
+    p = cli("estimate", robot, "--readings", log, "--unknown", "0.25,0,0,-1", "-o",
+            tmp_path / "o.csv")
+    assert p.returncode == 3 and "5 skipped" in p.stdout
+    assert b"\r" not in log.read_bytes() + (tmp_path / "o.csv").read_bytes()
+
+
 def test_two_loads_the_readings_cannot_tell_apart_are_said_to_be_confounded(prototype):
     """Two forces 10 mm apart read by three tendons: each one's 1-σ band is many times what
     it is alone and every path says the two are confounded (a combination is fixed, not each);
@@ -1093,3 +1154,53 @@ def test_a_live_log_with_a_byte_that_is_not_utf8_skips_its_row(errors):
     assert p.returncode == 1 and not p.stdout
     assert p.stderr.decode().strip() == (
         "tendonsense estimate: error: <stdin>: header: not UTF-8 text: save it as CSV in UTF-8")
+
+
+def test_only_a_tendon_under_tension_is_stuck_on_every_path(prototype, tmp_path):
+    """A stuck tendon with no tension has no friction band (its "range" was a point, or the
+    other tendons' ends): refused for a single reading, a sample of a stream or a filter, a
+    log's row, and a log whose column says so throughout."""
+    with pytest.raises(ValueError, match="t2 is slack"):
+        estimate(prototype, {"t1": -0.005}, {"t1": 2.0}, [TIP], sliding={"t2": "stuck"})
+    for dynamic in (False, True):
+        online = OnlineEstimator(problem(prototype, ["t1"], [TIP]), dynamic=dynamic)
+        got = online.update({"t1": -0.005}, {"t1": 2.0}, 0.0, {"t2": "stuck"})
+        assert not got.converged and "t2 is slack" in got.note
+    rows = (ROOT / "examples" / "tutorial" / "readings.csv").read_text().splitlines()
+    log = tmp_path / "log.csv"
+    log.write_text("\n".join([rows[0] + ",sliding_t2"] + [r + ",stuck" for r in rows[1:]]))
+    rc, err, jax_loaded = refused_before_jax("estimate", PROTOTYPE, "--readings", log,
+                                             "--unknown", "0.25,0,0,-1", "-o", tmp_path / "o.csv")
+    assert rc == 1 and "column sliding_t2: 300 of 300 rows say stuck where t2 is slack" in err
+    assert not jax_loaded and not (tmp_path / "o.csv").exists()
+    from tendonsense.readings import read_readings
+    log.write_text("\n".join([rows[0] + ",sliding_t2", rows[1] + ",stuck"]
+                             + [r + "," for r in rows[2:]]))
+    samples = read_readings(log, prototype)[1]
+    assert "t2 is slack" in samples[0].error and not any(s.error for s in samples[1:])
+
+
+def test_marker_columns_in_millimetres_are_refused(tmp_path):
+    """A log's marker columns in mm (every marker hundreds of metres from the base) were
+    estimated with a shape misfit of 190 m, and fitted a damping of 3e5 Pa s: the log is
+    refused, as the snapshots are; a row off the robot alone is skipped."""
+    from tendonsense.readings import read_readings
+    from tendonsense.robot import load_robot
+    rows = (ROOT / "examples" / "tutorial" / "readings.csv").read_text().splitlines()[:40]
+    log = tmp_path / "log.csv"
+    log.write_text("\n".join([rows[0] + ",marker_tip_x,marker_tip_y,marker_tip_z"]
+                             + [r + ",245.0,0.0,-40.0" for r in rows[1:]]))
+    for args in (("estimate", PROTOTYPE, "--readings", log, "--unknown", "0.25,0,0,-1", "-o",
+                  tmp_path / "o.csv"),
+                 ("identify", PROTOTYPE, "--readings", log, "--param", "damping",
+                  "--no-inertia", "-o", tmp_path / "fit.toml")):
+        rc, err, jax_loaded = refused_before_jax(*args)
+        assert rc == 1 and "marker tip: 39 of 39 rows are off the robot" in err, err
+        assert "positions are in metres" in err and not jax_loaded
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["log.csv"]
+    log.write_text("\n".join([rows[0] + ",marker_tip_x,marker_tip_y,marker_tip_z",
+                              rows[1] + ",245.0,0.0,-40.0"]
+                             + [r + ",0.245,0.0,-0.040" for r in rows[2:]]))
+    samples = read_readings(log, load_robot(PROTOTYPE))[1]
+    assert "positions are in metres" in samples[0].error
+    assert not any(s.error for s in samples[1:])

@@ -63,6 +63,18 @@ def test_fits_within_3_percent_with_half_millimetre_noise(truth):
     assert 2e-4 < fit.marker_rmse < 1.5e-3
 
 
+def test_a_parameter_run_to_zero_is_not_determined(truth):
+    """Loads given with the wrong sign push μ below zero: the fit runs it to 0, which was
+    printed as "0 ± 0", as if perfectly determined; it has no ± and the warning says why."""
+    flipped = [Snapshot(s.tensions, s.markers, None if s.load is None
+                        else (s.load[0], tuple(-np.asarray(s.load[1]))))
+               for s in snapshots(truth)]
+    fit = identify(start(truth), flipped, ALL)
+    assert fit.parameters["friction"] == 0.0 and fit.sigma["friction"] is None
+    assert fit.warning.startswith("friction ran to 0, the edge of its range")
+    assert fit.sigma["young_modulus"] > 0 and fit.to_json()["sigma"]["friction"] is None
+
+
 def test_friction_needs_a_tensioned_snapshot(truth):
     snaps = [s for s, (T, _) in zip(snapshots(truth), CASES) if not T]
     with pytest.raises(SnapshotError, match="no snapshot has a tendon under tension"):

@@ -170,6 +170,20 @@ def _cli(*args):
                           capture_output=True, text=True)
 
 
+def test_a_band_whose_middle_lies_outside_its_ends_is_said_to(prototype):
+    """t1 pulled 40 mm at 6 N bends the rod past a right angle, where several equilibria
+    explain one reading: the band's middle (1.16 N) lay outside its ends (0.80 and -7.7 N),
+    with no word; a reading at a moderate bend, monotone over its band, carries no note."""
+    from tendonsense.sliding import band_note
+    tip = [PointForceUnknown(0.25, (0, 0, -1))]
+    r = estimate(prototype, {"t1": -0.04}, {"t1": 6.0}, tip, sliding={"t1": "stuck"})
+    assert r.converged and "not monotone over the friction band" in r.extra["note"]
+    r = estimate(prototype, {"t1": -0.005}, {"t1": 2.0}, tip, sliding={"t1": "stuck"})
+    low, high = r.extra["magnitude_range"][0]
+    assert low < r.magnitudes[0] < high and "monotone" not in r.extra.get("note", "")
+    assert band_note([1.0], [[0.5], [np.nan]]) == ""  # an open end is said otherwise
+
+
 def test_a_band_end_goes_on_across_a_logs_chunks(prototype):
     """A stretch of stuck rows longer than a file log's chunk (100 rows, three tendons read for
     one force): each end of the band goes on from the row before across the chunk's edge, as

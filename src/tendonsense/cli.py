@@ -796,6 +796,8 @@ def _check_estimate(args, robot, tensions, displacements):
                              "and --tension NAME=N per measured tendon, or --readings LOG.csv")
         inputs.readings(robot, displacements, tensions)
         inputs.check_unknowns(robot, list(displacements), args.unknown)
+        inputs.check_stuck(robot, args.sliding, tensions,
+                           any(getattr(u, "located", False) for u in args.unknown))
         return
     if displacements or tensions:
         raise UsageError("tendonsense estimate: --readings replaces --displacement/--tension")
@@ -812,7 +814,7 @@ def _check_estimate(args, robot, tensions, displacements):
         raise UsageError("tendonsense estimate: --json: the rows go to standard output as "
                          "CSV; give -o OUT.csv for the rows in a file and a JSON summary")
     if args.readings != "-":
-        from .readings import has_time, motion_step_error, read_readings
+        from .readings import has_time, motion_step_error, read_readings, released_at_start
         args.log = read_readings(args.readings, robot)
         inputs.check_unknowns(robot, args.log[0], args.unknown)
         if args.dynamic and not has_time(args.readings):
@@ -820,6 +822,9 @@ def _check_estimate(args, robot, tensions, displacements):
                                 f"(--dynamic) needs each row's time stamp, s")
         if args.dynamic and (error := motion_step_error(args.readings, args.log[1])):
             raise ReadingsError(error)
+        if not any(getattr(u, "located", False) for u in args.unknown) and (
+                note := released_at_start(args.log[1], robot, args.tension_noise)):
+            print(f"tendonsense: {args.readings}: note: {note}", file=sys.stderr)
     _no_damping(args, robot)
 
 
@@ -1237,12 +1242,14 @@ def _single(args, robot) -> bool:
         result = forward_kinematics(robot, args.displacement, args.tension,
                                     _point_forces(args), sliding=args.sliding)
         title = "forward kinematics"
+    # the figure first: a reader of standard output that goes away (``| head``) stops the
+    # printing, not the figure
+    written = _plot_shape(args, robot, result, getattr(args, "unknown", ())) if args.plot \
+        else []
     _print_result(result, args.json, title, robot, args.unknown
                   if args.command == "estimate" else ())
-    if args.plot:
-        written = _plot_shape(args, robot, result, getattr(args, "unknown", ()))
-        if not args.json:
-            print("wrote " + ", ".join(str(p) for p in written))
+    if written and not args.json:
+        print("wrote " + ", ".join(str(p) for p in written))
     return result.converged
 
 
@@ -1266,7 +1273,7 @@ def _log(args, robot) -> bool:
     prog = _Progress(args, "estimate")
     good = shown = 0
     try:
-        writer = csv.writer(out)
+        writer = csv.writer(out, lineterminator="\n")
         writer.writerow(rd.output_header(robot, len(unknowns), with_shape, where, follow))
         for first, estimates in estimate_chunks(robot, measured, samples, unknowns, forces,
                                                 noise, args.dynamic, _walk(args)):
@@ -1342,6 +1349,8 @@ def _logs(args, robot) -> int:
     for s in done:
         if s.error:
             print(f"tendonsense: {s.error}", file=sys.stderr)
+        if s.note:
+            print(f"tendonsense: {s.log}: note: {s.note}", file=sys.stderr)
         for row, why in s.skipped_rows:
             _skipped_row(s.log, row, why)
         _more_skipped(s.log, s.skipped - len(s.skipped_rows))
@@ -1461,7 +1470,7 @@ def _paced(lines, viewer):
                 start, first = now, t
             time.sleep(max(0.0, start + (t - first) - now))
         out = io.StringIO()
-        csv.writer(out).writerow(raw)
+        csv.writer(out, lineterminator="\n").writerow(raw)
         yield out.getvalue()
 
 
@@ -1645,7 +1654,9 @@ def _simulate(args, robot) -> bool:
                        output_dt=args.output_dt, max_step=args.max_step,
                        inertia=not args.no_inertia, sliding=args.sliding, q0=q0)
     cols = sim.readings(args.noise_length, args.noise_tension, args.seed)
-    write_csv_atomic(args.log, list(cols), np.column_stack(list(cols.values())).tolist())
+    write_csv_atomic(args.log, list(cols), [  # a sample not converged: its shape's cells empty
+        ["" if math.isnan(v) else v for v in row]
+        for row in np.column_stack(list(cols.values())).tolist()])
     if args.plot:
         from . import plotting
         plotting.simulation(sim, args.plot, title=f"{robot.name}: simulated motion",
@@ -1668,10 +1679,13 @@ def _simulate(args, robot) -> bool:
         uneven = f" (the last after {last:g} s)" if abs(last - args.output_dt) > 1e-9 else ""
         print(f"simulated {sim.time[-1]:g} s, {sim.time.size} rows every {args.output_dt:g} s"
               f"{uneven}; wrote {args.log}" + (f", {args.plot}" if args.plot else ""))
-        if tip:
-            print(f"marker {tip} at the end: {_vector(sim.markers[tip][-1])} m")
-        for n, y in sim.displacements.items():
-            print(f"tendon {n}: length change at the end {y[-1] * 1e3:+.3f} mm")
+        good = np.flatnonzero(sim.converged)
+        at = ("at the end" if sim.ok else f"at t = {sim.time[good[-1]]:g} s, the last "
+              f"converged sample" if good.size else None)
+        if tip and at:
+            print(f"marker {tip} {at}: {_vector(sim.markers[tip][good[-1]])} m")
+        for n, y in sim.displacements.items() if at else ():
+            print(f"tendon {n}: length change {at} {y[good[-1]] * 1e3:+.3f} mm")
         for n, s in sim.friction_state.items():
             pulled, out = np.mean(s >= 1 - inputs.EDGE), np.mean(s <= -1 + inputs.EDGE)
             if pulled < 1:
@@ -1679,7 +1693,8 @@ def _simulate(args, robot) -> bool:
                       f"{1 - pulled - out:.0%}, paid out {out:.0%}")
         if not sim.ok:
             print(f"NOT CONVERGED at {int(np.sum(~sim.converged))} of {sim.time.size} samples "
-                  f"(from t = {sim.time[np.argmin(sim.converged)]:g} s)")
+                  f"(from t = {sim.time[np.argmin(sim.converged)]:g} s): their lengths and "
+                  f"markers are empty in {args.log}")
     return sim.ok
 
 

@@ -27,7 +27,7 @@ from .problem import (Problem, _jacobians_fn, confounded, noise_covariance,  # n
                       problem, reduced_jacobians)
 from .result import Result
 from .robot import Robot
-from .sliding import band_range
+from .sliding import band_note, band_range
 from .statics import Drive, NewtonResult, Unknowns, shape_outputs, solve_system
 
 
@@ -141,6 +141,7 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
     """
     inputs.tendon_vector(robot, displacements, "displacement")  # a mapping of the robot's names
     prob = problem(robot, list(displacements), unknowns, point_forces)
+    inputs.check_stuck(robot, sliding, tensions, bool(prob.located))
     if not sliding:
         return estimate_problem(prob, displacements, tensions, noise, x0)
     stuck = [robot.tendon_names.index(n) for n, d in inputs.sliding(robot, sliding).items()
@@ -167,6 +168,8 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
         extra["note"] = "; ".join(filter(None, [extra.get("note"), (
             f"no equilibrium at the friction band's end ({' / '.join(open_ends)}): the range "
             "is open on that side")]))
+    if mid.converged and (note := band_note(mid.magnitudes, ends)):
+        extra["note"] = "; ".join(filter(None, [extra.get("note"), note]))
     return dataclasses.replace(mid, extra=extra)
 
 

@@ -39,7 +39,7 @@ import numpy as np
 from .compiled import Program
 from .dynamics import free_modes
 from .estimation import estimate_problem
-from .inputs import WALK, Noise, check_noise, sliding as check_sliding
+from .inputs import WALK, Noise, check_noise, check_stuck, sliding as check_sliding
 from .kinematics import poses, positions
 from .model import PointSet, Structure, Values, points_at
 from .problem import Problem, _jacobians_fn, confounded
@@ -266,6 +266,7 @@ class MotionFilter:
             given = {}
             if sliding:
                 check_sliding(prob.robot, sliding)
+                check_stuck(prob.robot, sliding, tensions)
                 given = {names.index(n): d for n, d in sliding.items()}
         except ValueError as exc:
             return self._failed(f"bad value: {exc}")

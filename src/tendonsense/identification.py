@@ -349,6 +349,9 @@ def _what(snapshots) -> str:
     return " and ".join(kinds)
 
 
+#: a parameter fitted below this share of its starting value ran to zero, the edge of its
+#: range (the data push it below): it is not determined, and has no ±
+RAN_TO_ZERO = 1e-6
 #: a fit whose χ² is above this quantile of the χ² distribution of its degrees of freedom
 #: is said not to explain the data (and one below 1 − it, to have less noise than assumed)
 MISFIT_QUANTILE = 0.999
@@ -443,6 +446,12 @@ def identify(robot: Robot, snapshots: Sequence[Snapshot],
     ratio, warning = misfit_of(
         {"marker": (np.concatenate([m.ravel() for m, _ in parts]), marker_noise),
          "length": (np.concatenate([y for _, y in parts]), length_noise)}, len(params))
+    if zero := [k for k, r in zip(params, theta) if r < np.log(RAN_TO_ZERO)]:
+        sigma.update(dict.fromkeys(zero))
+        warning = "; ".join(filter(None, [
+            f"{' and '.join(zero)} ran to 0, the edge of {'its' if len(zero) == 1 else 'their'}"
+            f" range (these data push {'it' if len(zero) == 1 else 'them'} below): not "
+            f"determined, no ± given", warning]))
     return Identified(fitted, *_errors(parts), *initial, converged, it, new_robot, folds,
                       per_snapshot, sigma, note, ratio, warning)
 

@@ -291,6 +291,30 @@ def sliding(robot: Robot, directions: Mapping[str, str] | None,
     return out
 
 
+def stuck_error(name: str, tension: float) -> str:
+    """Why tendon ``name`` at ``tension`` (N) cannot be stuck, or '': only a tendon under
+    tension sticks in its guides (a slack one has no friction band)."""
+    return (f"sliding {name}=stuck: {name} is slack ({tension:g} N): only a tendon under "
+            f"tension sticks (its friction band is then between in and out)"
+            if not tension > 0 else "")
+
+
+def check_stuck(robot: Robot, directions: Mapping[str, str] | None,
+                tensions: Mapping[str, float], located: bool = False) -> None:
+    """The rules of a reading's stuck tendons (:func:`stuck_error`; a tendon not given a
+    tension is slack), and none with a force of unknown location (``located``: its range over
+    the band is estimated at known points, as in a log): a ValueError naming the first."""
+    stuck = [n for n, d in sliding(robot, directions).items() if d == "stuck"]
+    for name in stuck:
+        if error := stuck_error(name, float(tensions.get(name, 0.0))):
+            raise ValueError(error)
+    if stuck and located:
+        raise ValueError(f"sliding {stuck[0]}=stuck: the range over a friction band is "
+                         f"estimated for forces at known points; a force of unknown location "
+                         f"('?' or 'A:B') is searched with each tendon in or out: give its X, "
+                         f"or in/out")
+
+
 def friction_signs(robot: Robot, directions: Mapping[str, str] | None,
                    stuck: float = 0.0) -> np.ndarray:
     """The factor of every tendon's Capstan exponent μφ for its sliding direction: +1 pulled

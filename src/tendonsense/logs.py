@@ -21,10 +21,11 @@ from .inputs import WALK, check_unknowns
 from .online import OnlineEstimator
 from .readings import (SKIPPED_SHOWN, LogSummary, ReadingsError, Sample, check_units,
                        has_time, located, motion_step_error, output_header, output_row,
-                       output_rows, parse_header, parse_row, read_readings, time_back,
+                       output_rows, parse_header, parse_row, read_readings,
+                       released_at_start, time_back,
                        with_sliding, write_csv_atomic)
 from .robot import Robot
-from .sliding import GIVEN, FrictionHistory, band_range
+from .sliding import GIVEN, FrictionHistory, band_note, band_range
 from .tendons import turns
 from .tracking import SampleEstimate, series_chunks
 
@@ -148,8 +149,10 @@ def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
         if got[-1].converged:
             ends[key] = (first + stuck[-1], got[-1].x)
     for i, j in enumerate(stuck):
-        out[j] = replace(out[j], magnitude_range=band_range(out[j].magnitudes,
-                                                            [c[i] for c in corners]))
+        at_ends = [c[i] for c in corners]
+        out[j] = replace(out[j], magnitude_range=band_range(out[j].magnitudes, at_ends),
+                         note="; ".join(filter(None, [out[j].note,
+                                                      band_note(out[j].magnitudes, at_ends)])))
     return out
 
 
@@ -206,7 +209,9 @@ def estimate_file(robot: Robot, log: str | Path, out: str | Path, unknowns: Sequ
     bad = [(s.row, s.error) for s in samples if s.error]
     return LogSummary(str(log), str(out), len(samples),
                       sum(r.converged for r in results), len(bad),
-                      skipped_rows=tuple(bad[:SKIPPED_SHOWN]))
+                      skipped_rows=tuple(bad[:SKIPPED_SHOWN]),
+                      note="" if located(unknowns) else released_at_start(samples, robot,
+                                                                           noise.tension))
 
 
 def online_estimator(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
@@ -242,7 +247,7 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
     if dynamic and "time" not in columns.header:
         raise ReadingsError(f"{source}: no time column: estimation in motion (--dynamic) "
                             f"needs each row's time stamp, s")
-    writer = csv.writer(out)
+    writer = csv.writer(out, lineterminator="\n")
     with_shape = bool(columns.markers)
     follow = with_sliding(robot)
     writer.writerow(output_header(robot, len(unknowns), with_shape, located(unknowns), follow))

@@ -16,10 +16,10 @@ from .estimation import estimate_problem
 from .fastpath import live
 from .filtering import MotionFilter
 from .forward import INADMISSIBLE
-from .inputs import WALK, Noise, check_noise, sliding as check_sliding
+from .inputs import WALK, Noise, check_noise, check_stuck, sliding as check_sliding
 from .problem import Problem, confounded
 from .result import SampleEstimate
-from .sliding import DIRECTION, GIVEN, band_range
+from .sliding import DIRECTION, GIVEN, band_note, band_range
 from .statics import solve_system
 from .tendons import turns
 
@@ -134,6 +134,7 @@ class OnlineEstimator:
         try:
             T, y = prob.readings(displacements, tensions)
             said = check_sliding(prob.robot, sliding, default="").values() if sliding else ()
+            check_stuck(prob.robot, sliding, tensions, bool(prob.located))
             if self._follows:  # the history decides (NaN) where the reading does not say
                 given = np.array([GIVEN[d] for d in said]) if said else np.full(T.size, np.nan)
                 if said:
@@ -240,7 +241,9 @@ class OnlineEstimator:
         if stuck.size:
             ends = self._ends_of(row.z[:2**stuck.size, :n], row.state, stuck, reading,
                                  self._ref.drive(T, targets))
-            est = replace(est, magnitude_range=band_range(est.magnitudes, ends))
+            est = replace(est, magnitude_range=band_range(est.magnitudes, ends),
+                          note="; ".join(filter(None, [est.note,
+                                                       band_note(est.magnitudes, ends)])))
         return est, row
 
     def _ends_of(self, z, state, stuck, reading, drive) -> np.ndarray:

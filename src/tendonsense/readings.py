@@ -16,7 +16,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .inputs import (SLIDING, Unknown, displacement_error, force_error, marker_error,
-                     max_tension, rest_lengths, tension_error)
+                     max_tension, rest_lengths, stuck_error, tension_error)
 from .result import SampleEstimate
 from .robot import Robot, value_error
 
@@ -197,6 +197,12 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
             if error:
                 break
             values[col] = v
+    for m in columns.markers:
+        if not error:
+            error = marker_error(robot, m, [values[f"marker_{m}_{a}"] for a in AXES])
+    for name, d in sliding.items():
+        if d == "stuck" and not error:
+            error = stuck_error(name, values.get(f"tension_{name}", 0.0))
     if error:  # its time stamp kept where it can be read
         t = _number(raw[header.index("time")]) if "time" in header and len(raw) == len(
             header) else math.nan
@@ -247,10 +253,11 @@ def time_back(time: float, last: float | None) -> str | None:
 
 
 def check_units(path, columns: Columns, robot: Robot, rows):
-    """A length column most of whose rows change the tendon by more than its whole length, or
-    a tension column most of whose rows would crush the rod, is in the wrong unit, and a
-    sliding column most of whose rows are no direction is in another vocabulary: the log is
-    refused (its rows would each be skipped, or worse, the few that pass estimated)."""
+    """A length column most of whose rows change the tendon by more than its whole length, a
+    tension column most of whose rows would crush the rod, or a marker most of whose rows are
+    farther from the base than it can be, is in the wrong unit; a sliding column most of whose
+    rows are no direction is in another vocabulary, or say stuck for a slack tendon: the log
+    is refused (its rows would each be skipped, or worse, the few that pass estimated)."""
     def values(col):
         k = columns.header.index(col)
         v = np.array([_number(r[k]) for r in rows if len(r) == len(columns.header)])
@@ -273,6 +280,16 @@ def check_units(path, columns: Columns, robot: Robot, rows):
             raise ReadingsError(f"{path}: column {col}: {len(bad)} of {len(words)} rows are "
                                 f"not {', '.join(SLIDING[:-1])} or {SLIDING[-1]} (such as "
                                 f"{bad[0]!r})")
+        name = col[len("sliding_"):]
+        t = columns.header.index(f"tension_{name}") if f"tension_{name}" in columns.header \
+            else None
+        slack = sum(1 for r in rows if len(r) == len(columns.header)
+                    and r[k].strip().lower() == "stuck" and not (t is not None
+                                                                 and _number(r[t]) > 0))
+        if slack >= 3 and slack > len(words) / 2:
+            raise ReadingsError(f"{path}: column {col}: {slack} of {len(words)} rows say "
+                                f"stuck where {name} is slack (no tension): only a tendon "
+                                f"under tension sticks")
     for name in columns.measured:
         rest = columns.rest[robot.tendon_names.index(name)]
         v = values(f"displacement_{name}")
@@ -281,6 +298,16 @@ def check_units(path, columns: Columns, robot: Robot, rows):
             raise ReadingsError(
                 f"{path}: column displacement_{name}: {over} of {v.size} rows change the "
                 f"tendon by more than its whole length ({rest:.3g} m): lengths are in metres")
+    for m in columns.markers:
+        k = [columns.header.index(f"marker_{m}_{a}") for a in AXES]
+        why = []
+        for r in (r for r in rows if len(r) == len(columns.header)):
+            p = [_number(r[j]) for j in k]
+            if np.all(np.isfinite(p)) and (error := marker_error(robot, m, p)):
+                why.append(error)
+        if len(why) >= 3 and len(why) > len(rows) / 2:
+            raise ReadingsError(f"{path}: marker {m}: {len(why)} of {len(rows)} rows are "
+                                f"off the robot, such as: {why[0]}")
 
 
 #: rows of a log in motion are at most this far apart (median, s): farther, a rod settles
@@ -517,6 +544,36 @@ def with_sliding(robot: Robot) -> bool:
     return any(t.friction > 0 for t in robot.tendons)
 
 
+#: a fall of ln T this large (or three times the tension noise, the larger) from a log's
+#: first row, before any such rise, is a log that starts with a release
+RELEASE_AT_START = 0.05
+
+
+def released_at_start(samples: Sequence[Sample], robot: Robot, tension_noise: float = 0.0
+                      ) -> str:
+    """A note where a tendon's tension falls from a log's first row before it rises (by
+    :data:`RELEASE_AT_START` in ln T): the friction history takes every tendon as pulled in
+    at the first row, right after a pull (or a hold after one), not during a release."""
+    good = [s for s in samples if not s.error and s.tensions]
+    if not with_sliding(robot) or len(good) < 2:
+        return ""
+    step = max(RELEASE_AT_START, 3 * tension_noise)
+    for t in robot.tendons:
+        T = np.array([s.tensions.get(t.name, 0.0) for s in good])
+        if t.friction <= 0 or not T[0] > 0 or good[0].sliding.get(t.name):
+            continue  # (a direction the log gives at its start overrides the history)
+        moved = np.flatnonzero(np.abs(np.log(np.maximum(T, 1e-300) / T[0])) > step)
+        if moved.size and T[moved[0]] < T[0]:
+            k = moved[0]
+            return (f"{t.name}'s tension falls from the log's first row ({T[0]:.4g} N at row "
+                    f"{good[0].row}, {T[k]:.4g} N at row {good[k].row}): the friction history "
+                    f"takes {t.name} as pulled in at the first row, as after a pull or a hold "
+                    f"after one; if the log starts during a release, its rows until {t.name} "
+                    f"has fallen through its friction band read the friction of a pull "
+                    f"(start the log before the release)")
+    return ""
+
+
 def shape_rmse(result, measured: dict[str, np.ndarray]) -> float:
     """Root-mean-square distance (m) between estimated and measured markers."""
     d = [np.sum((result.markers[m] - p) ** 2) for m, p in measured.items()]
@@ -526,7 +583,7 @@ def shape_rmse(result, measured: dict[str, np.ndarray]) -> float:
 def write_csv_atomic(path: str | Path, header, rows):
     """Write a CSV atomically (see :func:`write_text_atomic`)."""
     buf = io.StringIO()
-    w = csv.writer(buf)
+    w = csv.writer(buf, lineterminator="\n")
     w.writerow(header)
     w.writerows(rows)
     write_text_atomic(path, buf.getvalue())
@@ -779,8 +836,10 @@ class LogSummary:
     error: str | None = None
     #: the first :data:`SKIPPED_SHOWN` skipped rows: (row, why)
     skipped_rows: tuple[tuple[int, str], ...] = ()
+    #: e.g. that the log starts with a release (:func:`released_at_start`)
+    note: str = ""
 
     def to_json(self) -> dict:
         return {"log": self.log, "output": None if self.error else self.output,
                 "samples": self.samples, "converged": self.converged, "skipped": self.skipped,
-                "error": self.error}
+                "error": self.error, "note": self.note}

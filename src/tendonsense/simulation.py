@@ -57,7 +57,8 @@ class Simulation:
         """The readings log's columns (the manual's *Conventions and file formats*): Gaussian
         read-out noise of ``noise_length`` (m) on the length changes and ``noise_tension``
         (relative) on the tensions, none on the markers; a noisy tension below 0 reads 0 (a
-        sensor of a slack tendon)."""
+        sensor of a slack tendon). A sample that did not converge reads NaN in its lengths
+        and markers (its shape is not known)."""
         if inputs.finite("noise_length", noise_length) < 0:
             raise ValueError(f"noise_length: must be >= 0 m, got {noise_length:g}")
         if self.robot is not None and (
@@ -72,11 +73,13 @@ class Simulation:
         for n, T in self.tensions.items():
             noisy = T * (1 + noise_tension * rng.standard_normal(T.shape))
             cols[f"tension_{n}"] = np.maximum(noisy, 0.0)
+        failed = ~np.asarray(self.converged, bool)
         for n, y in self.displacements.items():
-            cols[f"displacement_{n}"] = y + noise_length * rng.standard_normal(y.shape)
+            noisy = y + noise_length * rng.standard_normal(y.shape)
+            cols[f"displacement_{n}"] = np.where(failed, np.nan, noisy)
         for n, p in self.markers.items():
             for i, a in enumerate("xyz"):
-                cols[f"marker_{n}_{a}"] = p[:, i]
+                cols[f"marker_{n}_{a}"] = np.where(failed, np.nan, p[:, i])
         return cols
 
 

@@ -202,6 +202,24 @@ def band_range(middle, corners) -> np.ndarray:
     return np.stack([low, high], axis=1)
 
 
+def band_note(middle, corners) -> str:
+    """Where a magnitude's estimate at the band's ``middle`` lies outside its estimates at
+    the band's ``corners`` (all found), a note that the estimate is not monotone over the
+    band: more than one equilibrium may explain the reading (e.g. a rod bent past a right
+    angle), and the range spans the ones found; else ''."""
+    middle, corners = np.asarray(middle, float), np.atleast_2d(np.asarray(corners, float))
+    tol = 1e-9 * (1.0 + np.abs(middle))
+    out = [i for i in range(middle.size) if np.isfinite(corners[:, i]).all() and (
+        middle[i] < corners[:, i].min() - tol[i] or middle[i] > corners[:, i].max() + tol[i])]
+    if not out:
+        return ""
+    i = out[0]
+    return (f"not monotone over the friction band: magnitude {i + 1} is "
+            f"{middle[i]:.4g} at its middle, {' and '.join(f'{c:.4g}' for c in corners[:, i])}"
+            f" at its ends; more than one equilibrium may explain this reading, and the "
+            f"range spans the ones found")
+
+
 class Band(NamedTuple):
     """:class:`FrictionHistory`'s state as arrays, carried along a compiled scan
     (:func:`~tendonsense.fastpath.follower`): each tendon's last state at each turn (NaN: slack
