@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -363,6 +364,33 @@ def test_a_live_log_into_a_file_interrupted(tmp_path, monkeypatch, capsys):
     assert out.read_text() == "kept\n" and [p.name for p in tmp_path.iterdir()] == ["live.csv"]
 
 
+def test_a_failed_range_hands_over_the_chunks_before_it_and_raises(prototype, monkeypatch):
+    """A chunk's range that fails: the chunks before it are handed over, in order, and its
+    error raised; no chunk after it (their rows were handed over as None)."""
+    from tendonsense import logs
+    from tendonsense.readings import Sample
+    samples = [Sample(i + 1, None, {"t1": 2.0, "t2": 0.0, "t3": 0.0}, {"t1": -0.005}, {})
+               for i in range(350)]
+
+    def chunks(prob, displacements, tensions, noise, chunk, **kw):
+        for first in range(0, 350, 100):
+            time.sleep(0.3)  # the ranges before are done (or failed) meanwhile
+            yield first, [str(first)] * min(100, 350 - first)
+
+    def ranges(prob, rows, estimates, noise, *a):
+        if estimates[0] == "100":
+            raise RuntimeError("the range failed")
+        return [e + "r" for e in estimates]
+
+    monkeypatch.setattr(logs, "series_chunks", chunks)
+    monkeypatch.setattr(logs, "_stuck_ranges", ranges)
+    got = []
+    with pytest.raises(RuntimeError, match="the range failed"):
+        for first, estimates in logs.estimate_chunks(prototype, ["t1"], samples, [TIP]):
+            got.append((first, estimates))
+    assert got == [(0, ["0r"] * 100)]
+
+
 def test_a_logs_chunks_done_before_a_failure_are_handed_over(prototype, monkeypatch):
     """With the friction history a chunk is handed over once its stuck rows have their range
     (on a second thread, while the next chunk is scanned); a failure of the scan still hands
@@ -451,6 +479,9 @@ def test_a_header_only_log_is_an_error(tmp_path):
       "t1=stuck"), 1, "estimated for forces at known points"),
     (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--tension", "t1=2", "--unknown",
       "0.25,0,0,-1", "--sliding", "t2=stuck"), 1, "t2 is slack (0 N)"),
+    (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--tension", "t1=2", "--tension",
+      "t2=-1", "--unknown", "0.25,0,0,-1", "--sliding", "t2=stuck"), 1,
+     "tension t2 = -1 N is negative"),  # the tension's own rule, not "slack"
 ])
 def test_a_slip_is_refused_in_one_line_before_jax_starts(tmp_path, args, status, words):
     rc, err, jax_loaded = refused_before_jax(*args, cwd=tmp_path)  # relative outputs land here
@@ -1046,6 +1077,14 @@ def test_a_log_that_starts_with_a_release_is_noted(prototype, tmp_path):
             tmp_path / "o.csv")
     assert p.returncode == 0 and f"tendonsense: {cut}: note: {note}" in p.stderr
     assert estimate_file(prototype, cut, tmp_path / "o2.csv", [TIP]).note == note
+    # a slack tendon's sensor offset falling (t2 at 12 then 8 mN beside t1 pulled) is no
+    # release
+    offset = tmp_path / "offset.csv"
+    offset.write_text("\n".join([rows[0]] + [r.replace(",0,0,", f",{t2},0,") for r, t2 in
+                                             zip(rows[1:60], [0.012, 0.008] * 30)]) + "\n")
+    samples = read_readings(offset, prototype)[1]
+    assert samples[1].tensions["t2"] == 0.008
+    assert released_at_start(samples, prototype) == ""
 
 
 def test_a_simulation_that_did_not_converge_leaves_its_shape_empty(tmp_path):
@@ -1177,7 +1216,36 @@ def test_only_a_tendon_under_tension_is_stuck_on_every_path(prototype, tmp_path)
     log.write_text("\n".join([rows[0] + ",sliding_t2", rows[1] + ",stuck"]
                              + [r + "," for r in rows[2:]]))
     samples = read_readings(log, prototype)[1]
-    assert "t2 is slack" in samples[0].error and not any(s.error for s in samples[1:])
+    assert samples[0].error.startswith("column sliding_t2: stuck: t2 is slack")
+    assert not any(s.error for s in samples[1:])
+    # a live stream is not refused for its first rows: each such row is skipped
+    head = "\n".join([rows[0] + ",sliding_t2"] + [r + ",stuck" for r in rows[1:4]]
+                     + [r + "," for r in rows[4:8]]) + "\n"
+    p = cli("estimate", PROTOTYPE, "--readings", "-", "--unknown", "0.25,0,0,-1", stdin=head)
+    assert p.returncode == 3 and p.stderr.count("t2 is slack") == 3, p.stderr
+    assert len(p.stdout.strip().splitlines()) == 1 + 7
+
+
+def test_stuck_rows_with_a_force_of_unknown_location_are_refused(prototype, tmp_path):
+    """A file log (its force searched sample by sample) took a stuck row as pulled in without a
+    word, where a stream marks each such row: the log is refused, naming the row."""
+    from tendonsense.logs import estimate_file, estimate_readings
+    from tendonsense.readings import read_readings
+    rows = (ROOT / "examples" / "tutorial" / "readings.csv").read_text().splitlines()
+    log = tmp_path / "log.csv"
+    log.write_text("\n".join([rows[0] + ",displacement_t2,sliding_t1"]
+                             + [r + ",-0.001," for r in rows[1:5]] + [rows[5] + ",-0.001,stuck"]
+                             + [r + ",-0.001," for r in rows[6:9]]) + "\n")
+    located = [PointForceUnknown(None, (0, 0, -1))]
+    with pytest.raises(ValueError, match="row 5: column sliding_t1: stuck: the range over a "
+                                         "friction band is estimated for forces at known"):
+        estimate_readings(prototype, ["t1", "t2"], read_readings(log, prototype)[1], located)
+    assert estimate_file(prototype, log, tmp_path / "o.csv", located).error.startswith(
+        f"{log}: row 5: column sliding_t1: stuck")
+    rc, err, jax_loaded = refused_before_jax("estimate", PROTOTYPE, "--readings", log,
+                                             "--unknown", "?,0,0,-1", "-o", tmp_path / "o.csv")
+    assert rc == 1 and f"{log}: row 5: column sliding_t1: stuck" in err and not jax_loaded
+    assert not (tmp_path / "o.csv").exists()
 
 
 def test_marker_columns_in_millimetres_are_refused(tmp_path):

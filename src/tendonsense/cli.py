@@ -814,7 +814,8 @@ def _check_estimate(args, robot, tensions, displacements):
         raise UsageError("tendonsense estimate: --json: the rows go to standard output as "
                          "CSV; give -o OUT.csv for the rows in a file and a JSON summary")
     if args.readings != "-":
-        from .readings import has_time, motion_step_error, read_readings, released_at_start
+        from .readings import (has_time, motion_step_error, read_readings,
+                               released_at_start, stuck_rows_error)
         args.log = read_readings(args.readings, robot)
         inputs.check_unknowns(robot, args.log[0], args.unknown)
         if args.dynamic and not has_time(args.readings):
@@ -822,9 +823,11 @@ def _check_estimate(args, robot, tensions, displacements):
                                 f"(--dynamic) needs each row's time stamp, s")
         if args.dynamic and (error := motion_step_error(args.readings, args.log[1])):
             raise ReadingsError(error)
-        if not any(getattr(u, "located", False) for u in args.unknown) and (
-                note := released_at_start(args.log[1], robot, args.tension_noise)):
-            print(f"tendonsense: {args.readings}: note: {note}", file=sys.stderr)
+        if not any(getattr(u, "located", False) for u in args.unknown):
+            if note := released_at_start(args.log[1], robot, args.tension_noise):
+                print(f"tendonsense: {args.readings}: note: {note}", file=sys.stderr)
+        elif error := stuck_rows_error(args.readings, args.log[1]):
+            raise ReadingsError(error)
     _no_damping(args, robot)
 
 
@@ -1679,14 +1682,16 @@ def _simulate(args, robot) -> bool:
         uneven = f" (the last after {last:g} s)" if abs(last - args.output_dt) > 1e-9 else ""
         print(f"simulated {sim.time[-1]:g} s, {sim.time.size} rows every {args.output_dt:g} s"
               f"{uneven}; wrote {args.log}" + (f", {args.plot}" if args.plot else ""))
-        good = np.flatnonzero(sim.converged)
-        at = ("at the end" if sim.ok else f"at t = {sim.time[good[-1]]:g} s, the last "
-              f"converged sample" if good.size else None)
+        good = np.flatnonzero(sim.converged)  # (a sample not converged has no shape)
+        k = good[-1] if good.size else None
+        at = (None if k is None else "at the end" if k == sim.time.size - 1
+              else f"at t = {sim.time[k]:g} s, the last converged sample")
         if tip and at:
-            print(f"marker {tip} {at}: {_vector(sim.markers[tip][good[-1]])} m")
+            print(f"marker {tip} {at}: {_vector(sim.markers[tip][k])} m")
         for n, y in sim.displacements.items() if at else ():
-            print(f"tendon {n}: length change {at} {y[good[-1]] * 1e3:+.3f} mm")
-        for n, s in sim.friction_state.items():
+            print(f"tendon {n}: length change {at} {y[k] * 1e3:+.3f} mm")
+        for n, s in sim.friction_state.items() if good.size else ():
+            s = s[good]
             pulled, out = np.mean(s >= 1 - inputs.EDGE), np.mean(s <= -1 + inputs.EDGE)
             if pulled < 1:
                 print(f"tendon {n}: friction by the samples: pulled in {pulled:.0%}, stuck "

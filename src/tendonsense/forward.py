@@ -38,8 +38,9 @@ def why_not(res: NewtonResult, fine: bool, tolerance: float) -> str:
     False), or where the solver stopped."""
     if not fine:
         return INADMISSIBLE
-    return (f"the solver stopped after {int(res.iterations)} iterations at relative residual "
-            f"{float(res.residual):.2e} (tolerance {tolerance:g})")
+    return (f"the solver stopped after {int(res.iterations)} iterations (its load "
+            f"continuation's stages included) at relative residual {float(res.residual):.2e} "
+            f"(tolerance {tolerance:g})")
 
 
 def make_result(model: Model, x, tensions, res: NewtonResult, why: str | None = None,

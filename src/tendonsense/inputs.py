@@ -291,12 +291,20 @@ def sliding(robot: Robot, directions: Mapping[str, str] | None,
     return out
 
 
-def stuck_error(name: str, tension: float) -> str:
+def stuck_error(name: str, tension: float, what: str = "") -> str:
     """Why tendon ``name`` at ``tension`` (N) cannot be stuck, or '': only a tendon under
-    tension sticks in its guides (a slack one has no friction band)."""
-    return (f"sliding {name}=stuck: {name} is slack ({tension:g} N): only a tendon under "
+    tension sticks in its guides (a slack one has no friction band; a tension that is no
+    tension is left to its own rule). ``what`` names the statement (``sliding NAME=stuck``)."""
+    return (f"{what or f'sliding {name}=stuck'}: {name} is slack (0 N): only a tendon under "
             f"tension sticks (its friction band is then between in and out)"
-            if not tension > 0 else "")
+            if tension == 0 else "")
+
+
+def stuck_located_error(name: str, what: str = "") -> str:
+    """Why tendon ``name`` cannot be said stuck with a force of unknown location."""
+    return (f"{what or f'sliding {name}=stuck'}: the range over a friction band is estimated "
+            f"for forces at known points; a force of unknown location ('?' or 'A:B') is "
+            f"searched with each tendon in or out: give its X, or in/out")
 
 
 def check_stuck(robot: Robot, directions: Mapping[str, str] | None,
@@ -309,10 +317,7 @@ def check_stuck(robot: Robot, directions: Mapping[str, str] | None,
         if error := stuck_error(name, float(tensions.get(name, 0.0))):
             raise ValueError(error)
     if stuck and located:
-        raise ValueError(f"sliding {stuck[0]}=stuck: the range over a friction band is "
-                         f"estimated for forces at known points; a force of unknown location "
-                         f"('?' or 'A:B') is searched with each tendon in or out: give its X, "
-                         f"or in/out")
+        raise ValueError(stuck_located_error(stuck[0]))
 
 
 def friction_signs(robot: Robot, directions: Mapping[str, str] | None,

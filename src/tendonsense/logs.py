@@ -22,7 +22,7 @@ from .online import OnlineEstimator
 from .readings import (SKIPPED_SHOWN, LogSummary, ReadingsError, Sample, check_units,
                        has_time, located, motion_step_error, output_header, output_row,
                        output_rows, parse_header, parse_row, read_readings,
-                       released_at_start, time_back,
+                       released_at_start, stuck_rows_error, time_back,
                        with_sliding, write_csv_atomic)
 from .robot import Robot
 from .sliding import GIVEN, FrictionHistory, band_note, band_range
@@ -43,11 +43,14 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
                     ) -> Iterator[tuple[int, list[SampleEstimate]]]:
     """Estimate every good sample of a log in order, each warm-started from the last good one
     (:func:`~tendonsense.tracking.series_chunks`); yields ``(first, estimates)`` as chunks
-    finish (with the friction history, each once its stuck rows have their range, while the
-    next chunk is scanned); a sample the reader skipped is an estimate that did not converge,
-    its note ``skipped: <why>``. ``dynamic``: over the samples' time stamps
-    with the damped model (:class:`~tendonsense.filtering.MotionFilter`)."""
+    finish (with the friction history, each once its stuck rows have their range, computed
+    while the scan goes on, up to :data:`AHEAD` chunks ahead); a sample the reader skipped is
+    an estimate that did not converge, its note ``skipped: <why>``. ``dynamic``: over the
+    samples' time stamps with the damped model (:class:`~tendonsense.filtering.MotionFilter`).
+    A row saying a tendon is stuck is a ValueError with a force of unknown location."""
     prob = problem(robot, measured, unknowns, point_forces)
+    if prob.located and (error := stuck_rows_error("the log", samples)):
+        raise ValueError(error)
     if dynamic:
         if error := motion_step_error("the log", samples):
             raise ValueError(error)
@@ -85,27 +88,32 @@ def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sam
             yield place(first, estimates)
     else:
         # a chunk's stuck rows' range on a second thread, while the scan goes on with the next
-        # chunk (the compiled programs release the GIL: each takes a core)
-        with ThreadPoolExecutor(1) as pool:
-            pending: deque = deque()
+        # chunks (the compiled programs release the GIL: each takes a core)
+        pool = ThreadPoolExecutor(1)
+        pending: deque = deque()
 
-            def handed(keep: int):  # the chunks whose ranges are done, in order, and
-                # the oldest while more than ``keep`` wait
-                while pending and (len(pending) > keep or pending[0][1].done()):
-                    first, ranged = pending.popleft()
-                    yield place(first, ranged.result())
+        def handed(keep: int):  # the chunks whose ranges are done, in order, and the oldest
+            # while more than ``keep`` wait; a range that failed raises, its chunk kept back
+            while pending and (len(pending) > keep or pending[0][1].done()):
+                first, ranged = pending[0]
+                estimates = ranged.result()
+                pending.popleft()
+                yield place(first, estimates)
 
+        try:
+            ends: dict = {}  # each band end's last solution (_stuck_ranges)
             try:
-                ends: dict = {}  # each band end's last solution (_stuck_ranges)
                 for first, estimates in chunks:
                     rows = [samples[k] for k in good[first:first + len(estimates)]]
                     pending.append((first, pool.submit(_stuck_ranges, prob, rows, estimates,
                                                        noise, first, ends)))
                     yield from handed(AHEAD)
-            except Exception:  # the chunks done before a failure are still handed over
+            except Exception:  # the chunks scanned before a failure are still handed over
                 yield from handed(0)
                 raise
             yield from handed(0)
+        finally:  # (stopped early: the ranges not started are dropped)
+            pool.shutdown(cancel_futures=True)
     if done < len(samples):
         yield done, out[done:]
 
@@ -116,9 +124,10 @@ def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
     """Estimates that followed their tendons' friction history
     (:class:`~tendonsense.sliding.FrictionHistory`), and where a tendon is stuck the range of
     the magnitudes over its band: the stuck rows estimated again as a series with each stuck
-    tendon pulled in and paid out. ``ends``: each end's last solution and its row (the rows
-    numbered from ``first``), kept from one chunk to the next, so that an end goes on from the
-    row before where a stretch of stuck rows runs on (else from the row's own estimate)."""
+    tendon pulled in and paid out. ``ends``: each end's last solution and its row (numbered
+    among the log's good rows, ``rows`` from ``first``), kept from one chunk to the next, so
+    that an end goes on from the row before where a stretch of stuck rows runs on (else from
+    the row's own estimate)."""
     ends = {} if ends is None else ends
     out = list(estimates)
     states = np.array([e.friction_state for e in out])
@@ -193,6 +202,8 @@ def estimate_file(robot: Robot, log: str | Path, out: str | Path, unknowns: Sequ
             check_unknowns(robot, measured, unknowns)
         except ValueError as exc:
             raise ValueError(f"{log}: {exc}") from None
+        if located(unknowns) and (error := stuck_rows_error(log, samples)):
+            raise ValueError(error)
         if dynamic and not has_time(log):
             raise ReadingsError(f"{log}: no time column: estimation in motion (dynamic) "
                                 f"needs each row's time stamp, s")

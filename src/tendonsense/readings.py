@@ -16,7 +16,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .inputs import (SLIDING, Unknown, displacement_error, force_error, marker_error,
-                     max_tension, rest_lengths, stuck_error, tension_error)
+                     max_tension, rest_lengths, stuck_error, stuck_located_error,
+                     tension_error)
 from .result import SampleEstimate
 from .robot import Robot, value_error
 
@@ -202,7 +203,8 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
             error = marker_error(robot, m, [values[f"marker_{m}_{a}"] for a in AXES])
     for name, d in sliding.items():
         if d == "stuck" and not error:
-            error = stuck_error(name, values.get(f"tension_{name}", 0.0))
+            error = stuck_error(name, values.get(f"tension_{name}", 0.0),
+                                f"column sliding_{name}: stuck")
     if error:  # its time stamp kept where it can be read
         t = _number(raw[header.index("time")]) if "time" in header and len(raw) == len(
             header) else math.nan
@@ -228,9 +230,28 @@ def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sampl
                if any(c.strip() for c in raw)]
     if not samples:
         raise ReadingsError(f"{path}: no data rows below the header")
+    for name in robot.tendon_names:  # a column's slip, not a row's
+        said = f"column sliding_{name}: stuck"
+        slack = [s for s in samples if (s.error or "").startswith(said)]
+        if len(slack) >= 3 and len(slack) > len(samples) / 2:
+            raise ReadingsError(f"{path}: column sliding_{name}: {len(slack)} of "
+                                f"{len(samples)} rows say stuck where {name} is slack (0 N): "
+                                f"only a tendon under tension sticks")
     if error := time_order_error(path, samples):
         raise ReadingsError(error)
     return columns.measured, samples
+
+
+def stuck_rows_error(source, samples: Sequence[Sample]) -> str | None:
+    """Why a log whose rows say a tendon is stuck cannot be estimated with a force of unknown
+    location (:func:`~tendonsense.inputs.stuck_located_error`, its first such row), or
+    None."""
+    for s in samples:
+        name = next((n for n, d in s.sliding.items() if d == "stuck"), None)
+        if name is not None and not s.error:
+            return f"{source}: row {s.row}: " + stuck_located_error(
+                name, f"column sliding_{name}: stuck")
+    return None
 
 
 def time_order_error(source, samples: Sequence[Sample]) -> str | None:
@@ -256,8 +277,8 @@ def check_units(path, columns: Columns, robot: Robot, rows):
     """A length column most of whose rows change the tendon by more than its whole length, a
     tension column most of whose rows would crush the rod, or a marker most of whose rows are
     farther from the base than it can be, is in the wrong unit; a sliding column most of whose
-    rows are no direction is in another vocabulary, or say stuck for a slack tendon: the log
-    is refused (its rows would each be skipped, or worse, the few that pass estimated)."""
+    rows are no direction is in another vocabulary: the log is refused (its rows would each
+    be skipped, or worse, the few that pass estimated)."""
     def values(col):
         k = columns.header.index(col)
         v = np.array([_number(r[k]) for r in rows if len(r) == len(columns.header)])
@@ -280,16 +301,6 @@ def check_units(path, columns: Columns, robot: Robot, rows):
             raise ReadingsError(f"{path}: column {col}: {len(bad)} of {len(words)} rows are "
                                 f"not {', '.join(SLIDING[:-1])} or {SLIDING[-1]} (such as "
                                 f"{bad[0]!r})")
-        name = col[len("sliding_"):]
-        t = columns.header.index(f"tension_{name}") if f"tension_{name}" in columns.header \
-            else None
-        slack = sum(1 for r in rows if len(r) == len(columns.header)
-                    and r[k].strip().lower() == "stuck" and not (t is not None
-                                                                 and _number(r[t]) > 0))
-        if slack >= 3 and slack > len(words) / 2:
-            raise ReadingsError(f"{path}: column {col}: {slack} of {len(words)} rows say "
-                                f"stuck where {name} is slack (no tension): only a tendon "
-                                f"under tension sticks")
     for name in columns.measured:
         rest = columns.rest[robot.tendon_names.index(name)]
         v = values(f"displacement_{name}")
@@ -300,13 +311,11 @@ def check_units(path, columns: Columns, robot: Robot, rows):
                 f"tendon by more than its whole length ({rest:.3g} m): lengths are in metres")
     for m in columns.markers:
         k = [columns.header.index(f"marker_{m}_{a}") for a in AXES]
-        why = []
-        for r in (r for r in rows if len(r) == len(columns.header)):
-            p = [_number(r[j]) for j in k]
-            if np.all(np.isfinite(p)) and (error := marker_error(robot, m, p)):
-                why.append(error)
-        if len(why) >= 3 and len(why) > len(rows) / 2:
-            raise ReadingsError(f"{path}: marker {m}: {len(why)} of {len(rows)} rows are "
+        read = [p for p in ([_number(r[j]) for j in k] for r in rows
+                            if len(r) == len(columns.header)) if np.all(np.isfinite(p))]
+        why = [e for e in (marker_error(robot, m, p) for p in read) if e]
+        if len(why) >= 3 and len(why) > len(read) / 2:
+            raise ReadingsError(f"{path}: marker {m}: {len(why)} of {len(read)} rows are "
                                 f"off the robot, such as: {why[0]}")
 
 
@@ -552,16 +561,20 @@ RELEASE_AT_START = 0.05
 def released_at_start(samples: Sequence[Sample], robot: Robot, tension_noise: float = 0.0
                       ) -> str:
     """A note where a tendon's tension falls from a log's first row before it rises (by
-    :data:`RELEASE_AT_START` in ln T): the friction history takes every tendon as pulled in
-    at the first row, right after a pull (or a hold after one), not during a release."""
+    :data:`RELEASE_AT_START` in ln T, or three times the relative ``tension_noise``, the
+    larger): the friction history takes every tendon as pulled in at the first row, right
+    after a pull (or a hold after one), not during a release. A tendon whose first tension is
+    under a tenth of the log's largest (a slack one's sensor offset), or whose direction the
+    first row gives, is not looked at."""
     good = [s for s in samples if not s.error and s.tensions]
     if not with_sliding(robot) or len(good) < 2:
         return ""
     step = max(RELEASE_AT_START, 3 * tension_noise)
+    top = max(max(s.tensions.values(), default=0.0) for s in good)
     for t in robot.tendons:
         T = np.array([s.tensions.get(t.name, 0.0) for s in good])
-        if t.friction <= 0 or not T[0] > 0 or good[0].sliding.get(t.name):
-            continue  # (a direction the log gives at its start overrides the history)
+        if t.friction <= 0 or not T[0] > 0.1 * top or good[0].sliding.get(t.name):
+            continue
         moved = np.flatnonzero(np.abs(np.log(np.maximum(T, 1e-300) / T[0])) > step)
         if moved.size and T[moved[0]] < T[0]:
             k = moved[0]
