@@ -25,7 +25,7 @@ from .inputs import (GravityUnknown, Noise, PointForceUnknown, Unknown,  # noqa:
 from .model import Values
 from .problem import (Problem, _jacobians_fn, confounded, noise_covariance,  # noqa: F401
                       problem, reduced_jacobians)
-from .result import Result
+from .result import Result, joined
 from .robot import Robot
 from .sliding import band_note, band_range
 from .statics import Drive, NewtonResult, Unknowns, shape_outputs, solve_system
@@ -165,11 +165,11 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
                                        for k, c in zip(stuck, combo)))
     extra = {**mid.extra, "magnitude_range": band_range(mid.magnitudes, ends)}
     if open_ends and mid.converged:
-        extra["note"] = "; ".join(filter(None, [extra.get("note"), (
+        extra["note"] = joined(extra.get("note"), (
             f"no equilibrium at the friction band's end ({' / '.join(open_ends)}): the range "
-            "is open on that side")]))
+            "is open on that side"))
     if mid.converged and (note := band_note(mid.magnitudes, ends)):
-        extra["note"] = "; ".join(filter(None, [extra.get("note"), note]))
+        extra["note"] = joined(extra.get("note"), note)
     return dataclasses.replace(mid, extra=extra)
 
 
@@ -210,7 +210,7 @@ def _other_equilibrium(prob: Problem, displacements, tensions, noise: Noise, val
             f"{apart * 1e3:.1f} mm away; found from the shape without the unknown loads); a "
             f"paid-out tendon's reading alone cannot tell them apart")
     return dataclasses.replace(found, extra={
-        **found.extra, "note": "; ".join(filter(None, [found.extra.get("note"), note])),
+        **found.extra, "note": joined(found.extra.get("note"), note),
         "other_estimate": {"magnitudes": other.magnitudes, "sigma": other.sigma,
                            "markers": other.markers}})
 
@@ -254,7 +254,7 @@ def _result(prob: Problem, x, drive, values, T, noise, converged, iterations, re
     n = prob.n_magnitudes
     sens, sigma, cov = _uncertainty(prob, x, drive, values, T, noise)
     z = x[prob.model.nq:]
-    note = "; ".join(filter(None, [extra.pop("note", ""), converged and confounded(cov, n)]))
+    note = joined(extra.pop("note", ""), converged and confounded(cov, n))
     return make_result(prob.model, x, T, NewtonResult(x, converged, iterations, res.residual, 0),
                        why=why,
                        magnitudes=z[:n], sigma=sigma[:n],
@@ -350,7 +350,7 @@ def _locate(prob: Problem, drive: Drive, values: Values, T, noise: Noise, budget
         notes.append(f"location poorly determined: 1-σ band {', '.join(poor)} is more than "
                      f"{POOR_LOCATION:.0%} of the rod length")
     if notes:
-        result.extra["note"] = "; ".join(filter(None, [result.extra.get("note"), *notes]))
+        result.extra["note"] = joined(result.extra.get("note"), *notes)
     return result
 
 

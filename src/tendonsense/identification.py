@@ -30,6 +30,7 @@ from .inputs import PARAMETERS, parameter_names  # noqa: F401 (API)
 from .kinematics import poses
 from .model import Structure
 from .readings import Snapshot, SnapshotError, motion_step_error, read_snapshots  # noqa: F401 (API)
+from .result import joined
 from .robot import Robot
 from .simulation import MAX_STEP, simulate
 from .statics import CACHE_SIZE, Drive, Unknowns, marker_positions, solve_system, terms
@@ -448,10 +449,10 @@ def identify(robot: Robot, snapshots: Sequence[Snapshot],
          "length": (np.concatenate([y for _, y in parts]), length_noise)}, len(params))
     if zero := [k for k, r in zip(params, theta) if r < np.log(RAN_TO_ZERO)]:
         sigma.update(dict.fromkeys(zero))
-        warning = "; ".join(filter(None, [
+        warning = joined(
             f"{' and '.join(zero)} ran to 0, the edge of {'its' if len(zero) == 1 else 'their'}"
             f" range (these data push {'it' if len(zero) == 1 else 'them'} below): not "
-            f"determined, no ± given", warning]))
+            f"determined, no ± given", warning)
     return Identified(fitted, *_errors(parts), *initial, converged, it, new_robot, folds,
                       per_snapshot, sigma, note, ratio, warning)
 
@@ -633,8 +634,7 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
                                1) if dp is not None else (None, "")
     fitted = robot.with_parameters(damping=eta)
     coarse = inputs.coarse_step(fitted, MAX_STEP)
-    warning = "; ".join(filter(None, (moving, warning,
-                                      coarse and f"at the fitted damping {coarse}")))
+    warning = joined(moving, warning, coarse and f"at the fitted damping {coarse}")
     return Identified({"damping": eta}, *errors(dp, dy), *errors(*initial),
                       bool(found.success) and not edge, evaluations[0],
                       fitted, sigma={"damping": sigma}, note=note,

@@ -24,6 +24,7 @@ from .readings import (SKIPPED_SHOWN, LogSummary, ReadingsError, Sample, check_u
                        output_rows, parse_header, parse_row, read_readings,
                        released_at_start, stuck_rows_error, time_back,
                        with_sliding, write_csv_atomic)
+from .result import joined
 from .robot import Robot
 from .sliding import GIVEN, FrictionHistory, band_note, band_range
 from .tendons import turns
@@ -160,8 +161,7 @@ def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
     for i, j in enumerate(stuck):
         at_ends = [c[i] for c in corners]
         out[j] = replace(out[j], magnitude_range=band_range(out[j].magnitudes, at_ends),
-                         note="; ".join(filter(None, [out[j].note,
-                                                      band_note(out[j].magnitudes, at_ends)])))
+                         note=joined(out[j].note, band_note(out[j].magnitudes, at_ends)))
     return out
 
 

@@ -18,7 +18,7 @@ from .filtering import MotionFilter
 from .forward import INADMISSIBLE
 from .inputs import WALK, Noise, check_noise, check_stuck, sliding as check_sliding
 from .problem import Problem, confounded
-from .result import SampleEstimate
+from .result import SampleEstimate, joined
 from .sliding import DIRECTION, GIVEN, band_note, band_range
 from .statics import solve_system
 from .tendons import turns
@@ -242,8 +242,7 @@ class OnlineEstimator:
             ends = self._ends_of(row.z[:2**stuck.size, :n], row.state, stuck, reading,
                                  self._ref.drive(T, targets))
             est = replace(est, magnitude_range=band_range(est.magnitudes, ends),
-                          note="; ".join(filter(None, [est.note,
-                                                       band_note(est.magnitudes, ends)])))
+                          note=joined(est.note, band_note(est.magnitudes, ends)))
         return est, row
 
     def _ends_of(self, z, state, stuck, reading, drive) -> np.ndarray:

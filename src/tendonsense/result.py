@@ -27,6 +27,11 @@ def _short(v) -> str:
     return repr(v)
 
 
+def joined(*notes) -> str:
+    """Notes joined by "; ", the empty ones (or None, False) left out."""
+    return "; ".join(filter(None, notes))
+
+
 def compact_repr(self) -> str:
     """A result's fields in a notebook's echo: long arrays by their shape."""
     return (f"{type(self).__name__}(" + ", ".join(
