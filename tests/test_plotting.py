@@ -7,6 +7,7 @@ import pytest
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.colors import to_rgba  # noqa: E402
 
 from tendonsense import plotting  # noqa: E402
@@ -91,7 +92,49 @@ def test_tendons_coloured_by_tension(figure):
     colours = [to_rgba(line.get_color()) for line in views(figure)[0].lines]
     slack = colours.count(to_rgba(plotting.SLACK))
     assert slack == 2  # t2 and t3
-    assert to_rgba(plotting.TENSION_CMAP(1.0)) in colours  # t1, the largest tension
+    (t1,) = [c for c in views(figure)[0].collections if isinstance(c, LineCollection)]
+    assert len(t1.get_colors()) == 8  # a colour between every two of its nine disks
+    bar = figure.axes[2]
+    assert bar.get_ylim()[1] == pytest.approx(2.0)  # t1 at its actuator, the largest tension
+
+
+@pytest.mark.parametrize("direction", ["in", "out", "stuck"])
+def test_a_tendons_colour_follows_its_tension_along_it(prototype, direction):
+    """Eq. 10 along the drawn tendon: pulled in it fades toward its anchor, paid out it grows,
+    stuck (drawn at its band's middle) it is one tension; the tension at the anchor is named
+    on the colour bar, at T exp(∓μφ) with φ the model's own turning of the tendon."""
+    from tendonsense.sliding import turning_program
+    from tendonsense.tendons import turning_along
+    sliding = {"t1": "in" if direction == "stuck" else direction}
+    result = solve(prototype, {"t1": 2.0}, [(0.25, (0, 0, -0.1))], sliding=sliding)
+    model = model_for(prototype)
+    phi = float(np.asarray(turning_program(model.structure)(result.q[None], model.values))[0, 0])
+    assert phi > 0.5
+    fig = plotting.shape_figure(result, prototype, sliding={"t1": direction})
+    fig.canvas.draw()
+    side = views(fig)[0]
+    (t1,) = [c for c in side.collections if isinstance(c, LineCollection)]
+    cmap = plotting.TENSION_CMAP(np.linspace(0.0, 1.0, plotting.TENSION_CMAP.N))
+    level = [np.argmin(np.abs(cmap - c).sum(axis=1)) for c in t1.get_colors()]
+    assert len(level) == len(prototype.tendons[0].disks) - 1
+    sign = {"in": 1, "out": -1, "stuck": 0}[direction]
+    anchor = 2.0 * np.exp(-sign * 0.4 * phi)
+    (names,) = fig.axes[2].child_axes
+    ticks = dict(zip((t.get_text() for t in names.get_yticklabels()), names.get_yticks()))
+    plt.close(fig)
+    if direction == "stuck":
+        assert len(set(level)) == 1 and set(ticks) == {"t1"}
+        return
+    assert (np.diff(level) <= 0).all() if direction == "in" else (np.diff(level) >= 0).all()
+    assert level[0] != level[-1]
+    assert ticks["t1"] == pytest.approx(2.0) and ticks["t1 at anchor"] == pytest.approx(
+        anchor, rel=1e-9)
+    # the turning of the drawn path is the model's at every disk (its polyline through them)
+    r = np.asarray(frames_fn(model.structure)(model.values, result.q, np.asarray(
+        prototype.tendons[0].disks)))
+    path = r[:, :3, 3] + np.einsum("nij,nj->ni", r[:, :3, :3],
+                                   prototype.tendons[0].offset(prototype.tendons[0].disks, 0.25))
+    assert turning_along(path, r[0, :3, 0])[-1] == pytest.approx(phi, rel=1e-12)
 
 
 @pytest.mark.parametrize("failed", ["strain outside the model's range", None])

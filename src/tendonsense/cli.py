@@ -985,7 +985,8 @@ def _plot_shape(args, robot, result, unknowns=()):
             "estimate": "shape and forces estimated from tendon readings"}[args.command]
     plotting.shape(result, args.plot, robot, forces=_point_forces(args), estimated=estimated,
                    title=f"{robot.name}: {what}", given=_given(args),
-                   failed=None if result.converged else result.extra.get("note", ""))
+                   failed=None if result.converged else result.extra.get("note", ""),
+                   sliding=getattr(args, "sliding", None))
     return written
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import io
 import textwrap
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
@@ -15,17 +15,20 @@ import jax.numpy as jnp  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.cm import ScalarMappable  # noqa: E402
+from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.colors import ListedColormap, Normalize  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.textpath import TextPath  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from .forward import model_for  # noqa: E402
-from .inputs import EDGE, parameter_words  # noqa: E402
+from .inputs import EDGE, friction_signs, parameter_words  # noqa: E402
 from .kinematics import frames_fn  # noqa: E402
 from .readings import write_bytes_atomic  # noqa: E402
 from .result import Result  # noqa: E402
 from .robot import Robot  # noqa: E402
+from .tendons import turning_along  # noqa: E402
 from .units import GF, between, newtons, spread  # noqa: E402
 
 SOURCES = ("length", "tension", "friction")
@@ -85,24 +88,30 @@ class Estimated(NamedTuple):
 
 def shape(result: Result, path, robot: Robot, *, forces: Sequence[Load] = (),
           estimated: Sequence[Estimated] = (), measured_markers: dict | None = None,
-          title: str = "", given: str = "", failed: str | None = None) -> Path:
+          title: str = "", given: str = "", failed: str | None = None,
+          sliding: Mapping[str, str] | None = None) -> Path:
     """The shape figure (:func:`shape_figure`) written as a PNG at ``path``."""
     return _save(shape_figure(result, robot, forces=forces, estimated=estimated,
                               measured_markers=measured_markers, title=title, given=given,
-                              failed=failed), path)
+                              failed=failed, sliding=sliding), path)
 
 
 def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
                  estimated: Sequence[Estimated] = (), measured_markers: dict | None = None,
-                 title: str = "", given: str = "", failed: str | None = None) -> Figure:
+                 title: str = "", given: str = "", failed: str | None = None,
+                 sliding: Mapping[str, str] | None = None) -> Figure:
     """A side (x–z) and a top (x–y) view of ``result`` on ``robot`` at one equal scale (mm):
     the unloaded rod, the clamped base, the backbone, named markers, the tendons coloured by
-    tension and the point loads drawn to one scale, labelled in N and gF.
+    their tension along them (eq. 10) and the point loads drawn to one scale, labelled in N
+    and gF.
 
     ``forces`` are known loads ``[(X, f N global)]``, ``estimated`` estimated ones
     (:class:`Estimated`, or tuples of its fields); ``measured_markers`` ({name: xyz m}) are
-    drawn as crosses. ``title`` and ``given`` are the two title lines. With ``failed`` (a reason) or a
-    result that did not converge, the views are stamped NOT CONVERGED."""
+    drawn as crosses. ``title`` and ``given`` are the two title lines. ``sliding``
+    ({tendon: 'in' | 'out' | 'stuck'}, default in) is how the result was solved: a tendon
+    paid out grows toward its anchor, a stuck one is drawn at its band's middle (no friction:
+    one tension, as :func:`~tendonsense.estimation.estimate` solves it). With ``failed`` (a
+    reason) or a result that did not converge, the views are stamped NOT CONVERGED."""
     L = robot.rod.length
     loads = ([(X, np.asarray(f, float), newtons(float(np.linalg.norm(f))), KNOWN)
               for X, f in forces]
@@ -115,10 +124,12 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
         model.values, jnp.asarray(result.q),
         jnp.asarray(np.concatenate([*routes, [X for X, *_ in loads]]), float)))
     p, R = g[:, :3, 3] * 1e3, g[:, :3, :3]
-    tendons, k = [], 0
-    for t, X in zip(robot.tendons, routes):
-        tendons.append((t.name, result.tensions.get(t.name, 0.0), p[k:k + len(X)] + np.einsum(
-            "nij,nj->ni", R[k:k + len(X)], t.offset(X, L) * 1e3)))
+    tendons, k = [], 0  # (name, tension at the actuator, path mm, each segment's tension)
+    for t, X, sign in zip(robot.tendons, routes, friction_signs(robot, sliding)):
+        T = result.tensions.get(t.name, 0.0)
+        r = p[k:k + len(X)] + np.einsum("nij,nj->ni", R[k:k + len(X)], t.offset(X, L) * 1e3)
+        tendons.append((t.name, T, r, T * np.exp(-sign * t.friction * turning_along(
+            r, R[k][:, 0]))))
         k += len(X)
     at = p[k:]
     backbone = np.asarray(result.backbone, float) * 1e3
@@ -132,22 +143,29 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     scale = ARROW * big / fmax if fmax > 0 else 0.0
     arrows = [(a, f * scale, f, s, c) for a, (_, f, s, c) in zip(at, loads)]
     lo, hi = _limits(_finite(np.concatenate(
-        [rod, *(r for *_, r in tendons), _points(markers), _points(measured),
+        [rod, *(r for _, _, r, _ in tendons), _points(markers), _points(measured),
          _points([a - v for a, v, *_ in arrows])])))
     fig = plt.figure()
     axes, cax = [fig.add_axes((0, 0, 1, 1)) for _ in VIEWS], fig.add_axes((0, 0, 1, 1))
     n_title = bool(title) + bool(given)
-    pt_per_mm = 72 * _place(fig, axes, cax, lo, hi, n_title)
-    X_of = {m.name: m.X for m in robot.markers}
-    tmax = max([T for _, T, _ in tendons], default=0.0)
+    tmax = max([T for _, T, _, along in tendons for T in (T, *along)], default=0.0)
     norm = Normalize(0.0, tmax if tmax > 0 else 1.0)
+    bar_names = _bar_names(tendons, norm.vmax)
+    names_in = max([TextPath((0, 0), n, size=8).get_extents().width / 72
+                    for _, n in bar_names], default=0.0)
+    pt_per_mm = 72 * _place(fig, axes, cax, lo, hi, n_title, names_in)
+    X_of = {m.name: m.X for m in robot.markers}
     for view, (ax, (name, i, j)) in enumerate(zip(axes, VIEWS)):
         ax.set_title(name, loc="left", fontsize=9)
         ax.set_ylabel(f"{'xyz'[j]} (mm)")
         ax.plot(rest[:, i], rest[:, j], ls="--", color=REST, lw=1.2, zorder=1)
-        for _, T, r in tendons:
-            ax.plot(r[:, i], r[:, j], color=TENSION_CMAP(norm(T)) if T > 0 else SLACK, lw=1.3,
-                    zorder=2)
+        for _, T, r, along in tendons:
+            if T > 0:
+                ax.add_collection(LineCollection(
+                    np.stack([r[:-1], r[1:]], axis=1)[..., [i, j]], colors=TENSION_CMAP(
+                        norm(along)), lw=1.3, zorder=2))
+            else:
+                ax.plot(r[:, i], r[:, j], color=SLACK, lw=1.3, zorder=2)
         ax.plot(backbone[:, i], backbone[:, j], color="black", lw=2.5, zorder=3)
         ax.plot(*rest[0, [i, j]], marker="s", color="black", ms=8, zorder=4)
         _draw_arrows(ax, view, arrows)
@@ -158,7 +176,7 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
             n = _label_side(backbone, L, X_of.get(m), xyz, i, j, arrows)
             clear = 0.0 if m not in X_of else max([0.0, *(
                 (np.array([np.interp(X_of[m], X, r[:, c]) for c in (i, j)]) - xyz[[i, j]]) @ n
-                for (*_, r), X in zip(tendons, routes))])
+                for (_, _, r, _), X in zip(tendons, routes))])
             ax.annotate(m, xyz[[i, j]], xytext=(9 + clear * pt_per_mm) * n, fontsize=8,
                         textcoords="offset points", color=colour, bbox=_LABEL_BOX, zorder=6,
                         **_align(n))
@@ -171,14 +189,14 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     for _ in range(3):
         _separate(fig, axes)
         lo, hi = _fit_text(fig, axes, lo, hi)
-        _place(fig, axes, cax, lo, hi, n_title)
+        _place(fig, axes, cax, lo, hi, n_title, names_in)
     if axes[0].get_position().y0 > axes[1].get_position().y1:
         axes[0].tick_params(labelbottom=False)
     else:
         axes[0].set_xlabel("x (mm)")
     axes[1].set_xlabel("x (mm)")
     if tmax > 0:
-        _tension_bar(fig, cax, norm, tendons)
+        _tension_bar(fig, cax, norm, bar_names)
     else:
         cax.remove()
     _legend(fig, axes, tendons, markers, measured, loads)
@@ -203,10 +221,10 @@ def _limits(pts):
     return lo - pad, hi + pad
 
 
-def _place(fig, axes, cax, lo, hi, n_title) -> float:
+def _place(fig, axes, cax, lo, hi, n_title, names_in=0.0) -> float:
     """Size the figure and place the views at one scale (stacked or side by side, whichever
-    is larger), with the limits ``lo``, ``hi`` (mm, global x y z), and the colour bar; the
-    scale in inches per mm."""
+    is larger), with the limits ``lo``, ``hi`` (mm, global x y z), and the colour bar with
+    ``names_in`` inches of names on its left; the scale in inches per mm."""
     (_, i, j), (_, _, k) = VIEWS
     span = hi - lo
     ex, ez, ey = span[i], span[j], span[k]
@@ -220,15 +238,15 @@ def _place(fig, axes, cax, lo, hi, n_title) -> float:
     else:
         w, h = 2 * ex * s + gw, max(ez, ey) * s
         boxes = [(0, h - ez * s, ex * s, ez * s), (ex * s + gw, h - ey * s, ex * s, ey * s)]
-    m = MARGIN_IN
-    fw, fh = m["left"] + w + m["right"], m["bottom"] + h + m["top"] + 0.25 * n_title
+    m, bar = MARGIN_IN, max(0.35, names_in + 0.15)
+    fw, fh = m["left"] + w + bar + m["right"], m["bottom"] + h + m["top"] + 0.25 * n_title
     fig.set_size_inches(fw, fh)
     for ax, (x, y, bw, bh), (_, a, b) in zip(axes, boxes, VIEWS):
         ax.set_position(((m["left"] + x) / fw, (m["bottom"] + y) / fh, bw / fw, bh / fh))
         ax.set_xlim(lo[a], hi[a])
         ax.set_ylim(lo[b], hi[b])
         ax.set_aspect("equal", adjustable="box")
-    cax.set_position(((m["left"] + w + 0.35) / fw, m["bottom"] / fh, 0.15 / fw, h / fh))
+    cax.set_position(((m["left"] + w + bar) / fw, m["bottom"] / fh, 0.15 / fw, h / fh))
     return s
 
 
@@ -348,18 +366,28 @@ def _align(d) -> dict:
     return dict(ha="center", va="bottom" if d[1] > 0 else "top")
 
 
-def _tension_bar(fig, cax, norm, tendons):
-    """The tension colour bar (N) with the tendons' names at their tensions."""
+def _bar_names(tendons, vmax) -> list[tuple[float, str]]:
+    """The tension bar's names: each tendon at its tension at the actuator and, where that
+    differs, at its anchor (names at about one tension joined)."""
+    ticks = [(T, 0, name) for name, T, _, _ in tendons if T > 0]
+    ticks += [(along[-1], 1, name) for name, T, _, along in tendons
+              if T > 0 and abs(along[-1] - T) >= 0.04 * vmax]
+    groups: list[list] = []
+    for T, anchor, name in sorted(ticks):
+        if not groups or T - groups[-1][0] >= 0.04 * vmax:
+            groups.append([T, [], []])
+        groups[-1][1 + anchor].append(name)
+    return [(T, "; ".join(filter(None, (", ".join(actuator), ", ".join(anchor) and
+                                         f"{', '.join(anchor)} at anchor"))))
+            for T, actuator, anchor in groups]
+
+
+def _tension_bar(fig, cax, norm, names):
+    """The tension colour bar (N) with ``names`` [(tension, name)] on its left."""
     bar = fig.colorbar(ScalarMappable(norm, TENSION_CMAP), cax=cax)
     bar.set_label("tendon tension (N)")
-    groups: list[list] = []
-    for name, T, _ in sorted((t for t in tendons if t[1] > 0), key=lambda t: t[1]):
-        if groups and T - groups[-1][0] < 0.04 * norm.vmax:
-            groups[-1][1].append(name)
-        else:
-            groups.append([T, [name]])
-    names = cax.secondary_yaxis("left")
-    names.set_yticks([T for T, _ in groups], [", ".join(ns) for _, ns in groups], fontsize=8)
+    left = cax.secondary_yaxis("left")
+    left.set_yticks([T for T, _ in names], [n for _, n in names], fontsize=8)
 
 
 def _legend(fig, axes, tendons, markers, measured, loads):
@@ -372,9 +400,9 @@ def _legend(fig, axes, tendons, markers, measured, loads):
     if measured:
         h.append(Line2D([], [], marker="x", color=MEASURED, mew=1.8, ls="none",
                         label="measured markers"))
-    if any(T > 0 for _, T, _ in tendons):
-        h.append(Line2D([], [], color=TENSION_CMAP(0.7), label="tendon (colour: tension)"))
-    if any(T <= 0 for _, T, _ in tendons):
+    if any(T > 0 for _, T, *_ in tendons):
+        h.append(Line2D([], [], color=TENSION_CMAP(0.7), label="tendon (colour: its tension)"))
+    if any(T <= 0 for _, T, *_ in tendons):
         h.append(Line2D([], [], color=SLACK, label="slack tendon"))
     stuck = any(c == ESTIMATED and "stuck tendon" in label for _, _, label, c in loads)
     estimated = "estimated force (a stuck tendon: its range)" if stuck else \

@@ -227,6 +227,18 @@ def depths(structure: Structure, values: Values, q):
     return phi
 
 
+def turning_along(points, entry) -> np.ndarray:
+    """The angle (rad) a tendon through ``points`` (n, 3), arriving from its actuator along
+    ``entry`` (3,), has turned through at each of its points but the last,
+    ``ψ_i = φ_0 + … + φ_i`` (eq. 10: the turns at the disks of a disk-routed tendon; for a
+    continuous one, the turning of the polyline through its points). Pulled in, the segment
+    after point i carries ``T exp(−μ ψ_i)``."""
+    u = np.diff(np.asarray(points, float), axis=0)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    before = np.concatenate([np.asarray(entry, float)[None] / np.linalg.norm(entry), u[:-1]])
+    return np.cumsum(np.asarray(_angle(before, u)))
+
+
 def actuation(structure: Structure, values: Values, q, friction):
     """``B(q)`` of eq. 14, shape (nq, n_t): the generalized force of a unit tension, the
     pull-back of :func:`unit_wrenches` through the grid poses."""
