@@ -81,12 +81,12 @@ def test_a_series_checks_its_readings_as_one_reading_is_checked(prototype):
     # the rules on arrays (a series) against inputs.readings on each (one reading)
     prob = problem(prototype, ["t1"], [TIP])
     rows = [({"t1": -0.005}, {"t1": 2.1}), ({"t1": "-0.005"}, {"t1": " 2.1 "}),
-            ({"t1": np.float32(-0.005)}, {"t1": True, "t2": np.int64(0)}),
+            ({"t1": np.float32(-0.005)}, {"t1": np.float64(2.1), "t2": np.int64(0)}),
             ({"t1": -0.005}, {"t1": [2.1], "t2": [0.0], "t3": [0.0]}),
             ({"t1": np.array([-0.005]), "t2": np.array([0.0])}, {"t1": 2.1, "t2": 0.0}),
             ({"t1": -0.005}, {"t1": None}), ({}, {"t1": 2.1}), ({"t2": 0.0}, {"t2": 1.0}),
             ({"t1": -0.005}, {"t1": 2.1, "t9": 1.0}), ({"t1": -0.005}, {"t1": 40.0}),
-            *((d, t) for d, t, _ in READINGS_SLIPS)]
+            ({"t1": -0.005}, {"t1": True}), *((d, t) for d, t, _ in READINGS_SLIPS)]
     T, y, errors = prob.many_readings([d for d, _ in rows], [t for _, t in rows])
     for k, (d, t) in enumerate(rows):
         try:
@@ -97,6 +97,9 @@ def test_a_series_checks_its_readings_as_one_reading_is_checked(prototype):
             assert k not in errors and np.array_equal(one, (T[k], y[k])), (d, t)
     assert {3, 4, 5, 6, 7} <= set(errors)  # sequences, None and missing lengths refused
     assert 0 not in errors and 1 not in errors and 2 not in errors
+    assert errors[10] == "tension t1: not a number: True"  # (was 1 N)
+    _, _, errors = prob.many_readings([{"t1": -0.005}] * 2, [{"t1": True}, {"t1": 2.1}])
+    assert errors == {0: "tension t1: not a number: True"}
     # every value a sequence (numpy makes a table of them)
     _, _, errors = prob.many_readings([{"t1": -0.005}] * 2,
                                       [{"t1": [2.1], "t2": [0.0], "t3": [0.0]}] * 2)
@@ -1272,3 +1275,136 @@ def test_marker_columns_in_millimetres_are_refused(tmp_path):
     samples = read_readings(log, load_robot(PROTOTYPE))[1]
     assert "positions are in metres" in samples[0].error
     assert not any(s.error for s in samples[1:])
+
+
+def test_a_length_change_only_a_pushing_tendon_makes_is_no_solution(prototype):
+    """Forward kinematics with a tendon longer than it is slack: a tension below zero is no
+    solution (it was reported converged at −3.03 N)."""
+    r = forward_kinematics(prototype, {"t1": 0.02})
+    assert not r.converged and r.tensions["t1"] < 0 and "push" in r.extra["note"]
+    assert "+0.020000 m would need" in forward_kinematics(prototype, {"t1": "0.02"}).extra["note"]
+    assert forward_kinematics(prototype, {"t1": 0.002}).converged  # gravity stretches t1
+    p = cli("fk", PROTOTYPE, "--displacement", "t1=0.02")
+    assert p.returncode == 3 and "would need it to push" in p.stdout
+
+
+def test_an_estimated_force_the_model_cannot_hold_is_no_estimate(prototype, tmp_path):
+    """A force estimated beyond the bound a known force is held to (half the rod's axial
+    stiffness E·A): not converged, the note says why (it was 6891 N ± 210 N, converged), on
+    the single path, a log and a live stream; an unknown force at the clamp and an unknown
+    gravity of a weightless robot are refused before computing."""
+    near = PointForceUnknown(0.001, (0, 0, -1))
+    r = estimate(prototype, {"t1": -0.005}, {"t1": 2.1}, [near])
+    assert not r.converged and r.magnitudes[0] > 1000 and "axial stiffness" in r.extra["note"]
+    assert estimate(prototype, {"t1": -0.005}, {"t1": 2.1}, [TIP]).converged
+    readings = [{"t1": -0.005}] * 2, [{"t1": 2.1}] * 2
+    assert not any(e.converged for e in estimate_series(problem(prototype, ["t1"], [near]),
+                                                         *readings))
+    assert all(e.converged for e in estimate_series(problem(prototype, ["t1"], [TIP]),
+                                                    *readings))
+    live = OnlineEstimator(problem(prototype, ["t1"], [near])).update({"t1": -0.005},
+                                                                     {"t1": 2.1})
+    assert not live.converged and "axial stiffness" in live.note
+    for args, words in ((("--unknown", "0,0,0,-1"), "clamped base"),
+                        (("--unknown", "gravity"), "no weight")):
+        robot = PROTOTYPE
+        if words == "no weight":
+            robot = tmp_path / "weightless.toml"
+            robot.write_text(PROTOTYPE.read_text().replace("density = 1340.0", "density = 0.0"))
+        code, err, jax_loaded = refused_before_jax(
+            "estimate", robot, "--displacement", "t1=-0.005", "--tension", "t1=2.1", *args)
+        assert code == 1 and words in err and not jax_loaded, err
+
+
+@pytest.mark.parametrize("edit, words", [
+    (("X = 0.125\n", "X = 0.125\noffset = [0.0, 0.0, 25]\n"), "marker[0] (mid).offset: "
+     "[0.0, 0.0, 25.0] is 25 m from the centre line, more than the rod is long"),
+    (("", '\n[[mass]]\nname = "g"\nX = 0.1\nmass = 0.004\noffset = [0, 0, 3]\n'),
+     "mass[0] (g).offset"),
+    (('name = "t1"', 'name = "a=b"'), "tendon[0] (a=b).name: \"a=b\": a name is letters"),
+    (('name = "mid"', 'name = "m 1"'), "marker[0] (m 1).name"),
+    (("disks = 9", "disks = 100000"), "100000 disks, more than 500"),
+    (("disks = 9", "disks = 1000000000"), "1000000000 disks, more than 500"),
+    (('name = "t1"', 'name = "-t"'), "not starting with '-'"),
+    ((None, None), "not a robot file (TOML is UTF-8 text; byte 0 is not"),
+])
+def test_a_robot_file_slip_of_a_new_robots_kind_is_refused(tmp_path, edit, words):
+    """Offsets in millimetres (a marker 25 m off the rod was accepted, a mass 3 m off moved
+    the shape), names that cannot head a column or be given as NAME=value, a disk count that
+    ran out of memory (74.5 GiB), a file that is not text (its name was not said)."""
+    text, path = PROTOTYPE.read_text(), tmp_path / "robot.toml"
+    old, new = edit
+    if old is None:
+        path.write_bytes(b"\xff\xfe" + text.encode())
+    else:
+        path.write_text(text.replace(old, new, 1) if old else text + new)
+    code, err, jax_loaded = refused_before_jax("solve", path, "--tension", "t2=1")
+    assert code == 1 and words in err and str(path) in err and not jax_loaded, err
+    assert len(err.splitlines()) == 1
+
+
+def test_the_python_api_names_a_slip_of_its_arguments(prototype):
+    """A path for a robot (was an AttributeError), a bool for a tension (was 1 N), a
+    misspelled tendon in a live update (was 'displacement t1: missing')."""
+    for call in (lambda: solve(str(PROTOTYPE), {"t1": 1.0}),
+                 lambda: estimate(str(PROTOTYPE), {"t1": -0.005}, {"t1": 2.1}, [TIP])):
+        with pytest.raises(ValueError, match="robot: a Robot, such as tendonsense.load_robot"):
+            call()
+    with pytest.raises(ValueError, match="tension t1: not a number: True"):
+        solve(prototype, {"t1": True})
+    live = OnlineEstimator(problem(prototype, ["t1"], [TIP]))
+    assert "displacement T1: no such tendon" in live.update({"T1": -0.005}, {"t1": 2.1}).note
+    assert live.update({"t1": -0.005}, {"t1": 2.1}).converged
+    p = subprocess.run([sys.executable, "-m", "tendonsense", "--version"], capture_output=True,
+                       text=True, timeout=60)
+    assert p.returncode == 0 and p.stdout.startswith("tendonsense ")
+
+
+def test_a_stream_in_motion_checks_its_stamps_and_a_log_keeps_a_row_without_its_markers(
+        tmp_path):
+    """--dynamic on a stream: stamps 10 s apart are refused after its first rows (a file's
+    rule; was estimated, exit 0), a repeated stamp skips its row and says so (was a note
+    without 'skipped'); a row whose marker cells are empty (a frame the camera missed) is
+    estimated (was skipped), one with a marker's cell missing is skipped."""
+    head = "time,tension_t1,tension_t2,tension_t3,displacement_t1"
+    row = ",2.0,0,0,-0.0032"
+    args = ("estimate", PROTOTYPE, "--readings", "-", "--unknown", "0.25,0,0,-1", "--dynamic")
+    p = cli(*args, stdin="\n".join([head] + [f"{10 * k}{row}" for k in range(12)]) + "\n")
+    assert p.returncode == 1 and "(its first 10 rows): rows 10 s apart" in p.stderr
+    paused = [0.0] + [2.0 + 0.01 * k for k in range(11)]  # a pause at the start: a motion
+    p = cli(*args, stdin="\n".join([head] + [f"{t}{row}" for t in paused]) + "\n")
+    assert p.returncode == 0, p.stderr
+    p = cli(*args, stdin="\n".join([head] + [f"{t}{row}" for t in (0, 0.01, 0.01, 0.02)])
+            + "\n")
+    out = list(csv.DictReader(p.stdout.splitlines()))
+    assert [r["converged"] for r in out] == ["true", "true", "false", "true"]
+    assert out[2]["note"].startswith("skipped: time 0.01 s is the row before's")
+    assert "row 3 skipped" in p.stderr
+    log = tmp_path / "log.csv"
+    log.write_text("\n".join([head + ",marker_tip_x,marker_tip_y,marker_tip_z",
+                              f"0{row},0.24,0,-0.047", f"0.01{row},,,", f"0.02{row},0.24,,-0.047"])
+                   + "\n")
+    p = cli("estimate", PROTOTYPE, "--readings", log, "--unknown", "0.25,0,0,-1")
+    out = list(csv.DictReader(p.stdout.splitlines()))
+    assert [r["converged"] for r in out] == ["true", "true", "false"]
+    assert out[0]["shape_rmse"] and not out[1]["shape_rmse"]
+    assert "marker_tip_y: missing value" in out[2]["note"]
+
+
+def test_a_damping_fit_takes_a_row_without_its_markers(prototype, tmp_path):
+    """identify --readings: a row whose marker cells are empty (a frame the camera missed)
+    fits the damping to the markers the other rows have (was a KeyError: 'tip')."""
+    from tendonsense.identification import identify_damping
+    from tendonsense.readings import read_readings
+    robot = prototype.with_parameters(damping=1000.0)
+    start = solve(robot, {"t1": 1.9})
+    log = tmp_path / "step.csv"
+    cells = ",".join(map(repr, map(float, start.markers["tip"])))
+    log.write_text("time,tension_t1,tension_t2,tension_t3,displacement_t1,marker_tip_x,"
+                   "marker_tip_y,marker_tip_z\n" + "".join(
+                       f"{0.01 * k},{1.9 + 0.1 * min(k, 2)},0,0,{start.displacements['t1']},"
+                       f"{cells if k != 3 else ',,'}\n" for k in range(6)))
+    _, samples = read_readings(log, robot)
+    assert "tip" not in samples[3].markers and not samples[3].error
+    fit = identify_damping(robot, samples)
+    assert fit.marker_rmse is not None and np.isfinite(fit.marker_rmse)

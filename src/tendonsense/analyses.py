@@ -58,7 +58,8 @@ def sensitivity_single(robot: Robot, tendon: str = "t1", forces_gf=(-25.0, -75.0
         row = {"force_gF": f_gf, "force_N": F, "displacement_m": float(y), "tension_N": T,
                "truth_converged": truth.converged}
         if not truth.converged or T <= 0:
-            row["note"] = "slack or unsolved" if truth.converged else "forward problem failed"
+            row["note"] = ("slack or unsolved" if truth.converged or T < 0 else
+                           "forward problem failed")
             rows.append(row)
             continue
         nominal = estimate_problem(prob, {tendon: y}, {tendon: T})

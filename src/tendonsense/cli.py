@@ -1584,7 +1584,7 @@ def _identify(args, robot) -> bool:
     written = []
     if fit.converged:
         if args.fitted_robot:
-            text = Path(args.robot).read_text(encoding="utf-8")
+            text = Path(args.robot).read_text(encoding="utf-8-sig")
             write_text_atomic(args.fitted_robot,
                               fitted_toml(text, fit.robot,
                                           _fitted_header(args, robot, fit, source)))

@@ -26,7 +26,7 @@ from .model import Values
 from .problem import (Problem, _jacobians_fn, confounded, noise_covariance,  # noqa: F401
                       problem, reduced_jacobians)
 from .result import Result, joined
-from .robot import Robot
+from .robot import Robot, check_robot
 from .sliding import band_note, band_range
 from .statics import Drive, NewtonResult, Unknowns, shape_outputs, solve_system
 
@@ -139,7 +139,7 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
     ``magnitudes`` (N for point forces, a scale for gravity), their 1-σ band ``sigma`` for
     the sensor ``noise`` and ``sensitivity``: ∂magnitudes/∂measurement per measurement.
     """
-    inputs.tendon_vector(robot, displacements, "displacement")  # a mapping of the robot's names
+    inputs.tendon_vector(check_robot(robot), displacements, "displacement")  # the robot's names
     prob = problem(robot, list(displacements), unknowns, point_forces)
     inputs.check_stuck(robot, sliding, tensions, bool(prob.located))
     if not sliding:
@@ -252,6 +252,8 @@ def _solve(prob: Problem, drive: Drive, values: Values, x0, budget, total_budget
 def _result(prob: Problem, x, drive, values, T, noise, converged, iterations, res, misfit,
             why=None, **extra) -> Result:
     n = prob.n_magnitudes
+    if converged and (over := prob.overloaded(x, float(values.young_modulus))[0]):
+        converged, why = False, over
     sens, sigma, cov = _uncertainty(prob, x, drive, values, T, noise)
     z = x[prob.model.nq:]
     note = joined(extra.pop("note", ""), converged and confounded(cov, n))

@@ -43,7 +43,7 @@ from .inputs import WALK, Noise, check_noise, check_stuck, sliding as check_slid
 from .kinematics import poses, positions
 from .model import PointSet, Structure, Values, points_at
 from .problem import Problem, _jacobians_fn, confounded
-from .result import SampleEstimate
+from .result import SampleEstimate, joined
 from .sliding import NOISE_REACH, FrictionHistory, labels
 from .statics import CACHE_SIZE, Drive, Unknowns, admissible, terms
 from .tendons import depths, length_changes, turns
@@ -287,7 +287,8 @@ class MotionFilter:
             start = estimate_problem(prob, displacements, tensions, self.noise, values=(
                 values if history is None else values._replace(friction=values.friction[:, -1])))
             if not start.converged:
-                return self._failed("the first sample's quasi-static estimate did not converge",
+                return self._failed(joined("the first sample's quasi-static estimate did not "
+                                           "converge", start.extra.get("note")),
                                     start.extra["x"], start.iterations)
             n = prob.n_z
             z = start.extra["x"][prob.model.nq:]
@@ -313,12 +314,13 @@ class MotionFilter:
             friction_state=friction[:, -1], sliding=labels(
                 friction[:, -1], history.mu, history.phi[:, -1], self.noise.tension,
                 [given.get(k) == "stuck" for k in range(len(friction))]))
+        over = prob.overloaded(row[:self._row[2]])[0]  # a force the model cannot hold
         return SampleEstimate(z[:n], sigma[:n], dict(zip(prob.robot.marker_names,
                                                          markers.reshape(-1, 3))),
-                              True, 1, row[:self._row[2]],
+                              not over, 1, row[:self._row[2]],
                               # (the covariance fetched only where there is a pair to compare)
-                              confounded(np.asarray(new.P)[-prob.n_z:, -prob.n_z:], n)
-                              if n > 1 else "", **more)
+                              over or confounded(np.asarray(new.P)[-prob.n_z:, -prob.n_z:], n)
+                              if n > 1 or over else "", **more)
 
     def _at_rest(self, t, x, P, drive) -> FilterState:
         """A state at rest at ``x = [q; z]`` with covariance ``P`` (of q and z) and the exact

@@ -18,10 +18,13 @@ from .compiled import Program
 from .kinematics import poses
 from .model import Model
 from .result import Result
-from .robot import Robot
+from .robot import Robot, check_robot
 from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, derivatives, marker_positions,
                       shape_outputs, solve_system)
 
+#: a tension below −TENSION_TOL times the largest (at least 1 N) is a tendon pushing: no
+#: solution
+TENSION_TOL = 1e-9
 #: why a solution that satisfies the equations is not reported as converged
 INADMISSIBLE = "strain outside the model's range (a fibre compressed to nothing)"
 
@@ -30,7 +33,7 @@ INADMISSIBLE = "strain outside the model's range (a fibre compressed to nothing)
 def model_for(robot: Robot) -> Model:
     """The discretised model of ``robot`` (cached; models of robots that differ only in
     their numbers share every compiled program)."""
-    return Model.build(robot)
+    return Model.build(check_robot(robot))
 
 
 def why_not(res: NewtonResult, fine: bool, tolerance: float) -> str:
@@ -94,7 +97,7 @@ def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
     missing tendons are slack), gravity and known global ``point_forces`` [(X, f), ...];
     ``sliding`` ({tendon: 'in' | 'out'}, default in) is the direction each tendon slides,
     which sets the sense of its friction."""
-    model = model_for(robot)
+    model = model_for(check_robot(robot))
     drive = _statics_drive(robot, tensions, point_forces)
     res = solve_system(model.structure, sliding_values(robot, model.values, sliding), (),
                        drive, Unknowns.none(len(robot.tendons), drive.load_X.shape[0]), q0)
@@ -107,7 +110,10 @@ def forward_kinematics(robot: Robot, displacements: Mapping[str, float],
                        sliding: Mapping[str, str] | None = None) -> Result:
     """Forward kinematics (eq. 16): the shape and the tensions of the tendons whose length
     changes ``displacements`` (m) are prescribed; other tendons keep ``tensions`` (default 0);
-    ``sliding`` as for :func:`solve`."""
+    ``sliding`` as for :func:`solve`. A length change that only a pushing tendon could make
+    (longer than the tendon is when slack) is no solution: not converged, the note says
+    which."""
+    check_robot(robot)
     if not displacements:
         raise ValueError("forward kinematics needs at least one tendon displacement")
     y = inputs.displacements(robot, displacements)
@@ -125,8 +131,16 @@ def forward_kinematics(robot: Robot, displacements: Mapping[str, float],
         tensions=select)
     res = solve_system(model.structure, sliding_values(robot, model.values, sliding), measured,
                        drive, unknowns, q0)
-    z = np.asarray(res.x[model.nq:])
-    return make_result(model, res.x, np.asarray(drive.tensions) + select @ z, res)
+    T = np.asarray(drive.tensions) + select @ np.asarray(res.x[model.nq:])
+    pushing = [k for k in measured if T[k] < -TENSION_TOL * max(1.0, np.abs(T).max())]
+    if pushing and bool(res.converged):
+        k = pushing[0]
+        name, t = robot.tendon_names[k], T[k]
+        return make_result(model, res.x, T, res._replace(converged=False), why=(
+            f"tendon {name}: a length change of {y[k]:+.6f} m would need it to "
+            f"push ({t:.4g} N): it is longer than the tendon is when slack (a slack tendon's "
+            f"length does not set the shape; pulled in is negative)"))
+    return make_result(model, res.x, T, res)
 
 
 # ----------------------------------------------------------------------------- derivatives

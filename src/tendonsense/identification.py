@@ -511,7 +511,7 @@ def _moving_at_start(start, row, measured, markers, length_noise, marker_noise) 
     dy = max((abs(start.displacements[n] - row.displacements[n]) for n in measured),
              default=0.0)
     dp = max((float(np.linalg.norm(start.markers[m] - np.asarray(row.markers[m])))
-              for m in markers), default=0.0)
+              for m in markers if m in row.markers), default=0.0)
     if max(dy / length_noise, dp / marker_noise) <= AT_REST:
         return ""
     off = [f"{what} {d * 1e3:.2g} mm ({d / noise:.0f} σ)" for what, d, noise in (
@@ -549,14 +549,17 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
     _check_noises(robot, marker_noise, length_noise)
     names = robot.tendon_names
     measured = [n for n in names if n in rows[0].displacements]
-    markers = [m for m in robot.marker_names if m in rows[0].markers]
+    # (a row may lack a marker the camera missed: no residual there)
+    markers = [m for m in robot.marker_names if any(m in s.markers for s in rows)]
     if not measured and not markers:
         raise SnapshotError("the log has no displacement_<tendon> or marker columns: nothing "
                             "to fit the damping to")
     t = t - t[0]
     schedule = {n: (t, np.array([s.tensions[n] for s in rows])) for n in names}
     y_meas = np.array([[s.displacements[n] for n in measured] for s in rows])
-    p_meas = np.array([[s.markers[m] for m in markers] for s in rows]).reshape(len(rows), -1, 3)
+    p_meas = np.array([[s.markers.get(m, np.full(3, np.nan)) for m in markers] for s in rows]
+                      ).reshape(len(rows), -1, 3)
+    seen = np.isfinite(p_meas[..., 0])
     start = solve(robot, rows[0].tensions, point_forces)
     if not start.converged:
         raise SnapshotError(f"the first row's static equilibrium (the motion's start) did not "
@@ -576,8 +579,8 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
             return np.inf, None, None
         dy = np.stack([sim.displacements[n] for n in measured], 1) - y_meas if measured \
             else np.zeros((len(t), 0))
-        dp = np.stack([sim.markers[m] for m in markers], 1) - p_meas if markers \
-            else np.zeros((len(t), 0, 3))
+        dp = np.where(seen[..., None], np.stack([sim.markers[m] for m in markers], 1)
+                      - np.nan_to_num(p_meas), 0.0) if markers else np.zeros((len(t), 0, 3))
         chi2 = float(np.sum((dy / length_noise) ** 2) + np.sum((dp / marker_noise) ** 2))
         return chi2, dp, dy
 
@@ -623,14 +626,14 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
     def errors(dp, dy):
         if dp is None:
             return None, None
-        return (float(np.sqrt(np.mean(np.sum(dp ** 2, -1)))) if markers else None,
+        return (float(np.sqrt(np.mean(np.sum(dp ** 2, -1)[seen]))) if markers else None,
                 float(np.sqrt(np.mean(dy ** 2))) if measured else None)
 
     note = (f"the best damping lies at the end of the range searched (τ = {TAU_MIN:g} s … "
             f"{10 * t[-1]:g} s): the log does not pin it down" if edge else
             "" if sigma is not None else "the log bounds the damping from below only (χ² "
             "rises by less than 1 up to the end of the range searched)")
-    ratio, warning = misfit_of({"marker": (dp, marker_noise), "length": (dy, length_noise)},
+    ratio, warning = misfit_of({"marker": (dp[seen], marker_noise), "length": (dy, length_noise)},
                                1) if dp is not None else (None, "")
     fitted = robot.with_parameters(damping=eta)
     coarse = inputs.coarse_step(fitted, MAX_STEP)

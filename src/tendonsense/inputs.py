@@ -31,6 +31,8 @@ PointForce = tuple[float, Sequence[float]]
 
 def finite(name: str, value) -> float:
     """``value`` as a float, or a ValueError naming ``name``."""
+    if isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name}: not a number: {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -209,6 +211,10 @@ def readings(robot: Robot, displacements_: Mapping[str, float],
     and tensions ``tensions_`` (N) by tendon name; every measured tendon needs its tension,
     and the tendons ``measured`` their length change. ``rest``: the tendons'
     :func:`rest_lengths`, if known; ``young_modulus``: as for :func:`tension_error`."""
+    for what, given in (("displacement", displacements_), ("tension", tensions_)):
+        if given is not None and (not hasattr(given, "items") or not all(
+                n in robot.tendon_names for n, _ in given.items())):
+            tendon_vector(robot, given, what)  # (says why)
     if absent := [n for n in measured if n not in displacements_]:
         raise ValueError(f"displacement {absent[0]}: missing: the tendon is measured")
     missing = [n for n in displacements_ if n not in (tensions_ or {})]
@@ -237,6 +243,8 @@ def many_readings(robot: Robot, displacements: Sequence[Mapping[str, float]],
         np.asarray(young_modulus, object), (n,))], float)
 
     def table(maps) -> np.ndarray:
+        if any(isinstance(v, (bool, np.bool_)) for m in maps for v in m.values()):
+            raise ValueError  # (each reading then says which)
         a = np.array([[m.get(name, 0.0) for name in names] for m in maps], float)
         if a.size and a.shape != (n, len(names)):  # values that are sequences
             raise ValueError
@@ -512,6 +520,13 @@ def check_unknowns(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unk
             if not 0.0 <= a <= b <= L:
                 what = f"X = {a:g} m" if a == b else f"the range {a:g}:{b:g} m"
                 raise ValueError(f"unknown force: {what} is outside the rod [0, {L:g}]")
+            if b == 0.0:
+                raise ValueError("unknown force: at X = 0 it acts on the clamped base and moves "
+                                 "nothing: the readings cannot tell its size")
+        elif (robot.rod.density == 0 and not robot.masses) or not any(robot.gravity):
+            raise ValueError("unknown gravity: the robot has no weight (" + (
+                "its gravity's acceleration is 0" if not any(robot.gravity) else
+                "its rod's density is 0 and it carries no mass") + ")")
     fixed = [(i, u) for i, u in enumerate(unknowns, 1)
              if isinstance(u, PointForceUnknown) and not u.located]
     for k, (i, u) in enumerate(fixed):

@@ -36,6 +36,8 @@ CHUNK = 100
 AHEAD = 8
 #: a stream's first rows that decide whether a column is in the wrong unit
 UNIT_ROWS = 50
+#: the fewest of them that decide whether a stream's time stamps are seconds (--dynamic)
+STAMP_ROWS = 10
 
 
 def estimate_chunks(robot: Robot, measured: Sequence[str], samples: Sequence[Sample],
@@ -268,6 +270,7 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
     rows = good = 0
     last = None  # the last good row's time
     first: list[list[str]] = []
+    timed: list[Sample] = []  # in motion: the first rows' good samples, for their stamps
     for i, raw in enumerate(reader, start=1):
         if not any(c.strip() for c in raw):
             continue
@@ -276,10 +279,16 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
             check_units(f"{source} (its first {len(first)} rows)", columns, robot, first)
         s = parse_row(i, raw, columns, robot)
         if not s.error and s.time is not None:  # rows in time order (a file's rule)
-            if back := time_back(s.time, last):
+            if back := time_back(s.time, last, once=dynamic):
                 s = replace(s, error=back)
             else:
                 last = s.time
+                if dynamic and len(timed) < UNIT_ROWS:  # stamps in seconds, as a file's
+                    timed.append(s)  # (decided on STAMP_ROWS at least: a pause at the start)
+                    if len(timed) >= STAMP_ROWS and (error := motion_step_error(
+                            f"{source} (its first {len(timed)} rows)", timed,
+                            " (a static stream is estimated without --dynamic)")):
+                        raise ReadingsError(error)
         r = None if s.error else online.update(s.displacements, s.tensions, s.time, s.sliding)
         if r is None and on_skip:
             on_skip(s)

@@ -229,9 +229,10 @@ class OnlineEstimator:
             return None, row
         self._state, self._x, self._failures = state, x, 0
         nq, n = prob.model.nq, prob.n_magnitudes
+        over = self._ref.overloaded(x)[0]
         est = SampleEstimate(x[nq:nq + n], row.sigma[:n],
-                             dict(zip(prob.robot.marker_names, row.markers)), True,
-                             row.iterations, x, confounded(row.covariance, n),
+                             dict(zip(prob.robot.marker_names, row.markers)), not over,
+                             row.iterations, x, over or confounded(row.covariance, n),
                              self._ref.locations(x), row.sigma[n:])
         if not self._follows:
             return est, row

@@ -18,7 +18,7 @@ from .compiled import Program
 from .forward import model_for
 from .inputs import GravityUnknown, Noise, PointForceUnknown, Unknown, check_point_forces
 from .model import Model, Structure, Values
-from .robot import Robot
+from .robot import Robot, check_robot
 from .statics import CACHE_SIZE, Drive, Unknowns, terms
 
 
@@ -93,6 +93,54 @@ class Problem:
         """The measured tendons' names."""
         return tuple(self.robot.tendon_names[j] for j in self.measured)
 
+    @cached_property
+    def _estimated_forces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The loads the magnitudes act at: their indices in ``load_X``, each magnitude's unit
+        force there (n_magnitudes, n, 3) and :func:`~tendonsense.inputs.max_force` per unit E
+        at their X (for known X)."""
+        unit = np.asarray(self.unknowns.forces, float)[:self.n_magnitudes]
+        points = np.flatnonzero(np.any(unit != 0, axis=(0, 2)))
+        tops = np.array([inputs.max_force(self.robot, X, 1.0) for X in self.load_X[points]])
+        return points, unit[:, points], tops
+
+    def overloaded(self, x, young_modulus=None) -> list[str | None]:
+        """For solutions ``x`` (N, nq + n_z), why each is no load the model holds, or None: a
+        force estimated above :func:`~tendonsense.inputs.max_force` at its X, the bound a
+        known force is held to (half the rod's axial stiffness E·A where it is thinnest);
+        ``young_modulus`` the rod's (a scalar or one per solution) where it is not the robot
+        file's."""
+        x = np.atleast_2d(np.asarray(x, float))
+        n, nq = self.n_magnitudes, self.model.nq
+        points, unit, tops = self._estimated_forces
+        out: list[str | None] = [None] * len(x)
+        if not points.size:  # (gravity alone)
+            return out
+        with np.errstate(all="ignore"):  # (rows that did not converge: NaN or huge)
+            F = x[:, nq:nq + n] @ unit.reshape(n, -1)
+            size = np.sqrt(np.sum(F.reshape(len(x), -1, 3) ** 2, axis=2))  # (N, loads)
+        E = np.reshape(self.robot.rod.young_modulus if young_modulus is None
+                       else np.asarray(young_modulus, float), (-1, 1))
+        X = self.load_X[points][None]
+        if self.located:  # the bound where each force was found
+            where = {i: j for j, (i, _) in enumerate(self.located)}
+            X = np.clip(np.stack([self.load_X[p] + x[:, nq + n + where[p]] if p in where
+                                  else np.full(len(x), self.load_X[p]) for p in points], 1),
+                        0.0, self.robot.rod.length)
+            tops = np.array([[inputs.max_force(self.robot, X_, 1.0) for X_ in row]
+                             for row in X])
+        over = size > E * tops
+        if not over.any():
+            return out
+        top, X = np.broadcast_to(E * tops, size.shape), np.broadcast_to(X, size.shape)
+        for k, col in zip(*np.nonzero(over)):
+            if out[k] is None:
+                out[k] = (f"the estimated force of {size[k, col]:.4g} N at X = {X[k, col]:.4g} m "
+                          f"is more than half the rod's axial stiffness where it is thinnest "
+                          f"(E·A = {top[k, col] / inputs.MAX_COMPRESSION:.3g} N): no load "
+                          f"the model holds explains these readings (is the force's X or "
+                          f"direction right?)")
+        return out
+
     def drive(self, tensions, targets) -> Drive:
         return Drive(np.asarray(tensions, float), self.known_forces, self.load_X, self.gravity,
                      np.asarray(targets, float))
@@ -101,7 +149,7 @@ class Problem:
 def problem(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
             point_forces=()) -> Problem:
     """Set up the estimation of ``unknowns`` from the tendons named in ``measured``."""
-    inputs.check_unknowns(robot, measured, unknowns)
+    inputs.check_unknowns(check_robot(robot), measured, unknowns)
     n_p = len(unknowns)
     n_loc = sum(isinstance(u, PointForceUnknown) and u.located for u in unknowns)
     X_known, F_known = check_point_forces(robot, point_forces)

@@ -19,7 +19,7 @@ from .inputs import (SLIDING, Unknown, displacement_error, force_error, marker_e
                      max_tension, rest_lengths, stuck_error, stuck_located_error,
                      tension_error)
 from .result import SampleEstimate
-from .robot import Robot, value_error
+from .robot import Robot, check_robot, value_error
 
 AXES = ("x", "y", "z")
 
@@ -170,7 +170,9 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
     """One data row (1-based ``i``); a bad one is returned with ``error`` set."""
     header = columns.header
     values, sliding, error = {}, {}, None
-    if len(raw) != len(header):
+    if [c.strip().lstrip("\ufeff") for c in raw] == list(header):
+        error = "the header again (logs joined end to end?)"
+    elif len(raw) != len(header):
         error = f"has {len(raw)} fields, the header has {len(header)}"
     elif not utf8(raw):
         error = NOT_UTF8
@@ -185,6 +187,8 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
                              f"{', '.join(SLIDING[:-1])} or {SLIDING[-1]}")
                     break
                 continue
+            if col.startswith("marker_") and not text.strip():  # a frame the camera missed
+                continue
             v = _number(text)
             if not math.isfinite(v):
                 error = _not_finite(col, text)
@@ -198,7 +202,11 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
             if error:
                 break
             values[col] = v
-    for m in columns.markers:
+    seen = [m for m in columns.markers if any(f"marker_{m}_{a}" in values for a in AXES)]
+    for m in seen:
+        if not error and (gone := [a for a in AXES if f"marker_{m}_{a}" not in values]):
+            error = (f"column marker_{m}_{gone[0]}: missing value (a marker has its x, y and "
+                     f"z, or none where the camera missed it)")
         if not error:
             error = marker_error(robot, m, [values[f"marker_{m}_{a}"] for a in AXES])
     for name, d in sliding.items():
@@ -206,21 +214,21 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
             error = stuck_error(name, values.get(f"tension_{name}", 0.0),
                                 f"column sliding_{name}: stuck")
     if error:  # its time stamp kept where it can be read
-        t = _number(raw[header.index("time")]) if "time" in header and len(raw) == len(
-            header) else math.nan
+        t = _number(raw[header.index("time")]) if "time" in header and header.index(
+            "time") < len(raw) else math.nan
         return Sample(i, t if math.isfinite(t) else None, {}, {}, {}, error)
     return Sample(
         i, values.get("time"),
         {n: values[f"tension_{n}"] for n in robot.tendon_names if f"tension_{n}" in values},
         {n: values[f"displacement_{n}"] for n in columns.measured},
-        {m: np.array([values[f"marker_{m}_{a}"] for a in AXES]) for m in columns.markers},
+        {m: np.array([values[f"marker_{m}_{a}"] for a in AXES]) for m in seen},
         sliding=sliding)
 
 
 def read_readings(path: str | Path, robot: Robot) -> tuple[list[str], list[Sample]]:
     """Parse READINGS.csv (:func:`parse_header`, :func:`parse_row`). Returns (measured tendon
     names, samples)."""
-    path = Path(path)
+    path, robot = Path(path), check_robot(robot)
     rows = read_csv_rows(path, ReadingsError)
     if not rows:
         raise ReadingsError(f"{path}: empty file, expected a header row")
@@ -266,10 +274,13 @@ def time_order_error(source, samples: Sequence[Sample]) -> str | None:
     return None
 
 
-def time_back(time: float, last: float | None) -> str | None:
-    """Why a row stamped ``time`` cannot follow one stamped ``last`` (None: it can)."""
+def time_back(time: float, last: float | None, once: bool = False) -> str | None:
+    """Why a row stamped ``time`` cannot follow one stamped ``last`` (None: it can); ``once``:
+    nor have the same stamp (a motion's rule)."""
     if last is not None and time < last:
         return f"time {time:g} s is before the row before ({last:g} s)"
+    if once and time == last:
+        return f"time {time:g} s is the row before's: a motion's rows each have their own stamp"
     return None
 
 

@@ -9,6 +9,7 @@ import dataclasses
 import json
 import math
 import os
+import re
 import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -36,6 +37,10 @@ MAX_DENSITY = 22_590.0
 MAX_FRICTION = 2.0
 #: the largest gravitational acceleration, m/s² (a larger one is in other units)
 MAX_GRAVITY = 100.0
+#: the most guide disks a tendon may pass (closer ones are routed continuously)
+MAX_DISKS = 500
+#: a tendon's or marker's name: it heads columns and is given as NAME=value
+NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]*")
 
 
 def value_error(name: str, v: float) -> str | None:
@@ -174,11 +179,22 @@ class Robot:
 
 # ----------------------------------------------------------------------------- loading
 
+def check_robot(robot) -> Robot:
+    """``robot`` if it is a :class:`Robot`, else a ValueError saying how to make one."""
+    if not isinstance(robot, Robot):
+        raise ValueError(f"robot: a Robot, such as tendonsense.load_robot(path), not a "
+                         f"{type(robot).__name__}")
+    return robot
+
+
 def load_robot(path: str | Path) -> Robot:
     """Read and validate a robot file."""
     path = Path(path)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")  # (TOML is UTF-8; a BOM is not a key)
+    except UnicodeDecodeError as exc:
+        raise RobotFileError(f"{path}: not a robot file (TOML is UTF-8 text; byte "
+                             f"{exc.start} is not: {exc.reason})") from None
     except OSError as exc:
         why = exc.strerror
         if path.is_symlink() and not path.exists():  # e.g. a folder copied without -L
@@ -259,6 +275,24 @@ class _Reader:
             self.fail(key, f"must be a list of {n} numbers, got {_toml(v)}")
         return tuple(self._number(key, x) for x in v)
 
+    def name(self, key="name"):
+        """A name that can head a column (``tension_<name>``) and be given on the command line
+        (``--tension <name>=…``): letters, digits, ``_``, ``-`` and ``.``."""
+        v = self.string(key)
+        if not NAME.fullmatch(v):
+            self.fail(key, f"{_toml(v)}: a name is letters, digits, '_', '-' and '.', not "
+                           f"starting with '-' or '.' (it heads columns and is given as "
+                           f"NAME=value)")
+        return v
+
+    def offset(self, key, length):
+        """A point's offset (m, 3) from the rod's centre line, at most the rod's length."""
+        v = self.vector(key, 3, default=(0.0, 0.0, 0.0))
+        if np.linalg.norm(v) > length:
+            self.fail(key, f"{_toml(list(v))} is {np.linalg.norm(v):g} m from the centre line, "
+                           f"more than the rod is long ({length:g} m): offsets are in metres")
+        return v
+
     def string(self, key, *, default=None):
         if key not in self.table:
             if default is None:
@@ -322,16 +356,14 @@ def parse_robot(data: dict, source: str = "robot", default_name: str = "robot") 
     markers = []
     for r in _tables(data, "marker", top):
         r.check_keys(("name", "X", "offset"))
-        markers.append(Marker(r.string("name"), r.number("X", low=0.0, high=L),
-                              r.vector("offset", 3, default=(0.0, 0.0, 0.0))))
+        markers.append(Marker(r.name(), r.number("X", low=0.0, high=L), r.offset("offset", L)))
     _unique([m.name for m in markers], "marker", top)
 
     masses = []
     for r in _tables(data, "mass", top):
         r.check_keys(("name", "X", "mass", "offset"))
         masses.append(Mass(r.string("name"), r.number("X", low=0.0, high=L),
-                           r.number("mass", low=0.0, low_open=True),
-                           r.vector("offset", 3, default=(0.0, 0.0, 0.0))))
+                           r.number("mass", low=0.0, low_open=True), r.offset("offset", L)))
     _unique([m.name for m in masses], "mass", top)
 
     numerics = Numerics()
@@ -442,7 +474,7 @@ def _parse_rod(r: _Reader) -> Rod:
 
 def _parse_tendon(r: _Reader, rod: Rod) -> Tendon:
     r.check_keys(("name", "offset_base", "offset_tip", "friction", "disks"))
-    name = r.string("name")
+    name = r.name()
     ob, ot = r.vector("offset_base", 2), r.vector("offset_tip", 2)
     mu = r.number("friction", default=0.0)
     if why := value_error("friction", mu):
@@ -455,8 +487,10 @@ def _parse_tendon(r: _Reader, rod: Rod) -> Tendon:
     if continuous:
         disks = (0.0, L)
     elif isinstance(raw, int) and not isinstance(raw, bool):
-        if raw < 2:
-            r.fail("disks", f"must be at least 2 disks, got {raw}")
+        if not 2 <= raw <= MAX_DISKS:
+            r.fail("disks", f"must be at least 2 disks, got {raw}" if raw < 2 else
+                   f'{raw} disks, more than {MAX_DISKS} (disks = "continuous" is the limit of '
+                   f'many closely spaced disks)')
         disks = tuple(np.linspace(0.0, L, raw))
     elif isinstance(raw, list):
         if len(raw) < 2:
@@ -469,6 +503,9 @@ def _parse_tendon(r: _Reader, rod: Rod) -> Tendon:
             r.fail("disks", "disk positions must be strictly increasing")
     else:
         r.fail("disks", f'must be a count, a list of X or "continuous", got {_toml(raw)}')
+    if len(disks) > MAX_DISKS:
+        r.fail("disks", f'{len(disks)} disks, more than {MAX_DISKS} (disks = "continuous" is '
+                        f'the limit of many closely spaced disks)')
     t = Tendon(name, ob, ot, mu, disks, continuous)
     _check_reach(r, t, rod)
     return t

@@ -146,15 +146,19 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                 states = states[:, :, -1]
                 said = labels(states[:len(run)], mu, bands.phi[:len(run), :, -1], noise.tension,
                               stuck[run])
+            over = prob.overloaded(tr.x[:len(run)], varied["young_modulus"][run]
+                                   if "young_modulus" in varied else None)
+            solved_x = None  # the last solution of the equations (the next scan starts there)
             for j, k in enumerate(run):
                 friction = {} if history is None else dict(friction_state=states[j],
                                                            sliding=said[j])
-                if tr.converged[j]:
+                if tr.converged[j]:  # (a solution whose force the model cannot hold: not)
                     out[k] = SampleEstimate(
                         tr.x[j, model.nq:], sigma[j],
-                        dict(zip(robot.marker_names, tr.markers[j])), True,
-                        int(tr.iterations[j]), tr.x[j],
-                        "" if cov is None else confounded(cov[j], prob.n_magnitudes), **friction)
+                        dict(zip(robot.marker_names, tr.markers[j])), not over[j],
+                        int(tr.iterations[j]), tr.x[j], over[j] or (
+                            "" if cov is None else confounded(cov[j], prob.n_magnitudes)),
+                        **friction)
                 elif not persistent and last_failed:
                     out[k] = replace(SampleEstimate.failed(
                         prob, "not estimated: the sample before did not converge either",
@@ -170,15 +174,17 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                             out[k].x[None, :model.nq], model.values))[0]
                         out[k] = replace(out[k], sliding=labels(states[j], mu, phi,
                                                                 noise.tension, stuck[k]))
-                last_failed = not out[k].converged
-                seen_good = seen_good or out[k].converged
+                solved = out[k].converged or bool(tr.converged[j] and over[j])
+                solved_x = out[k].x if solved else solved_x
+                last_failed = not solved
+                seen_good = seen_good or solved
                 if j + 1 < len(run) and (tr.iterations[j + 1] == 0 or (
                         not tr.converged[j] and out[k].converged and not tr.converged[j + 1])):
                     break  # the scan stopped here, or failed on after a rescue: again after it
             if history is not None:  # as it stands after the last sample taken
                 Band(*(a[j] for a in bands)).into(history)
             pos += j + 1
-            x0 = next((out[k].x for k in reversed(run[:j + 1]) if out[k].converged), x0)
+            x0 = x0 if solved_x is None else solved_x
         end = idx[-1] + 1 if at + chunk < len(valid) else n
         yield done, out[done:end]
         done = end
