@@ -103,18 +103,32 @@ class Problem:
         tops = np.array([inputs.max_force(self.robot, X, 1.0) for X in self.load_X[points]])
         return points, unit[:, points], tops
 
+    @cached_property
+    def _unit_rows(self) -> np.ndarray:
+        """The unit forces of :attr:`_estimated_forces` as (n_magnitudes, loads × 3)."""
+        return self._estimated_forces[1].reshape(self.n_magnitudes, -1)
+
+    @cached_property
+    def _tops_squared(self) -> np.ndarray:
+        """The squared bound (N²) of each estimated force, with the robot file's E."""
+        return (self.robot.rod.young_modulus * self._estimated_forces[2]) ** 2
+
     def overloaded(self, x, young_modulus=None) -> list[str | None]:
         """For solutions ``x`` (N, nq + n_z), why each is no load the model holds, or None: a
         force estimated above :func:`~tendonsense.inputs.max_force` at its X, the bound a
         known force is held to (half the rod's axial stiffness E·A where it is thinnest);
         ``young_modulus`` the rod's (a scalar or one per solution) where it is not the robot
         file's."""
-        x = np.atleast_2d(np.asarray(x, float))
         n, nq = self.n_magnitudes, self.model.nq
         points, unit, tops = self._estimated_forces
-        out: list[str | None] = [None] * len(x)
         if not points.size:  # (gravity alone)
-            return out
+            return [None] * len(np.atleast_2d(x))
+        if young_modulus is None and not self.located and np.ndim(x) == 1:  # (a live sample)
+            F = (x[nq:nq + n] @ self._unit_rows).reshape(-1, 3)
+            if ((F * F).sum(axis=1) <= self._tops_squared).all():
+                return [None]
+        x = np.atleast_2d(np.asarray(x, float))
+        out: list[str | None] = [None] * len(x)
         with np.errstate(all="ignore"):  # (rows that did not converge: NaN or huge)
             F = x[:, nq:nq + n] @ unit.reshape(n, -1)
             size = np.sqrt(np.sum(F.reshape(len(x), -1, 3) ** 2, axis=2))  # (N, loads)
