@@ -97,7 +97,7 @@ def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
     missing tendons are slack), gravity and known global ``point_forces`` [(X, f), ...];
     ``sliding`` ({tendon: 'in' | 'out'}, default in) is the direction each tendon slides,
     which sets the sense of its friction."""
-    model = model_for(check_robot(robot))
+    model = model_for(robot)
     drive = _statics_drive(robot, tensions, point_forces)
     res = solve_system(model.structure, sliding_values(robot, model.values, sliding), (),
                        drive, Unknowns.none(len(robot.tendons), drive.load_X.shape[0]), q0)

@@ -96,22 +96,13 @@ class Problem:
     @cached_property
     def _estimated_forces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The loads the magnitudes act at: their indices in ``load_X``, each magnitude's unit
-        force there (n_magnitudes, n, 3) and :func:`~tendonsense.inputs.max_force` per unit E
+        force there (n_magnitudes, n × 3) and :func:`~tendonsense.inputs.max_force` per unit E
         at their X (for known X)."""
-        unit = np.asarray(self.unknowns.forces, float)[:self.n_magnitudes]
+        n = self.n_magnitudes
+        unit = np.asarray(self.unknowns.forces, float)[:n]
         points = np.flatnonzero(np.any(unit != 0, axis=(0, 2)))
         tops = np.array([inputs.max_force(self.robot, X, 1.0) for X in self.load_X[points]])
-        return points, unit[:, points], tops
-
-    @cached_property
-    def _unit_rows(self) -> np.ndarray:
-        """The unit forces of :attr:`_estimated_forces` as (n_magnitudes, loads × 3)."""
-        return self._estimated_forces[1].reshape(self.n_magnitudes, -1)
-
-    @cached_property
-    def _tops_squared(self) -> np.ndarray:
-        """The squared bound (N²) of each estimated force, with the robot file's E."""
-        return (self.robot.rod.young_modulus * self._estimated_forces[2]) ** 2
+        return points, unit[:, points].reshape(n, -1), tops
 
     def overloaded(self, x, young_modulus=None) -> list[str | None]:
         """For solutions ``x`` (N, nq + n_z), why each is no load the model holds, or None: a
@@ -124,13 +115,13 @@ class Problem:
         if not points.size:  # (gravity alone)
             return [None] * len(np.atleast_2d(x))
         if young_modulus is None and not self.located and np.ndim(x) == 1:  # (a live sample)
-            F = (x[nq:nq + n] @ self._unit_rows).reshape(-1, 3)
-            if ((F * F).sum(axis=1) <= self._tops_squared).all():
+            F = (x[nq:nq + n] @ unit).reshape(-1, 3)
+            if ((F * F).sum(axis=1) <= (self.robot.rod.young_modulus * tops) ** 2).all():
                 return [None]
         x = np.atleast_2d(np.asarray(x, float))
         out: list[str | None] = [None] * len(x)
         with np.errstate(all="ignore"):  # (rows that did not converge: NaN or huge)
-            F = x[:, nq:nq + n] @ unit.reshape(n, -1)
+            F = x[:, nq:nq + n] @ unit
             size = np.sqrt(np.sum(F.reshape(len(x), -1, 3) ** 2, axis=2))  # (N, loads)
         E = np.reshape(self.robot.rod.young_modulus if young_modulus is None
                        else np.asarray(young_modulus, float), (-1, 1))
