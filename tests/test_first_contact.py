@@ -1316,6 +1316,31 @@ def test_an_estimated_force_the_model_cannot_hold_is_no_estimate(prototype, tmp_
         assert code == 1 and words in err and not jax_loaded, err
 
 
+def test_a_force_the_measured_tendons_cannot_see_is_named(prototype):
+    """A force across the plane in which the measured tendon bends the rod (t1 bends it in
+    x–z; a force along y changes t1's length at second order only): not converged, the note
+    names the unknown and why, its σ unbounded (it was "relative residual 1.05e+00", σ 0),
+    on the single path, a series and a live stream; a force t1 sees has no such note."""
+    from tendonsense.problem import unseen
+    side = PointForceUnknown(0.25, (0, 1, 0))
+    r = estimate(prototype, {"t1": -0.005}, {"t1": 2.1}, [side])
+    words = "does not change length with unknown 1 (the force along (0, 1, 0) at X = 0.25 m)"
+    assert not r.converged and words in r.extra["note"] and np.isinf(r.sigma[0])
+    assert r.to_json()["sigma"] == [None]
+    readings = [{"t1": -0.005}] * 2, [{"t1": 2.1}] * 2
+    assert all(words in e.note for e in estimate_series(problem(prototype, ["t1"], [side]),
+                                                        *readings))
+    live = OnlineEstimator(problem(prototype, ["t1"], [side])).update({"t1": -0.005},
+                                                                     {"t1": 2.1})
+    assert not live.converged and words in live.note
+    seen = estimate(prototype, {"t1": -0.005}, {"t1": 2.1}, [TIP])
+    prob = problem(prototype, ["t1"], [TIP])
+    T, y = prob.readings({"t1": -0.005}, {"t1": 2.1})
+    drive = prob.drive(T, y[list(prob.measured)])
+    assert unseen(prob, seen.extra["x"], drive, prob.model.values) == ((), "")
+    assert unseen(prob, 0 * seen.extra["x"], drive, prob.model.values) == ((), "")
+
+
 @pytest.mark.parametrize("edit, words", [
     (("X = 0.125\n", "X = 0.125\noffset = [0.0, 0.0, 25]\n"), "marker[0] (mid).offset: "
      "[0.0, 0.0, 25.0] is 25 m from the centre line, more than the rod is long"),

@@ -24,7 +24,7 @@ from .inputs import (GravityUnknown, Noise, PointForceUnknown, Unknown,  # noqa:
                      check_noise)
 from .model import Values
 from .problem import (Problem, _jacobians_fn, confounded, noise_covariance,  # noqa: F401
-                      problem, reduced_jacobians)
+                      problem, reduced_jacobians, unseen)
 from .result import Result, joined
 from .robot import Robot, check_robot
 from .sliding import band_note, band_range
@@ -255,6 +255,10 @@ def _result(prob: Problem, x, drive, values, T, noise, converged, iterations, re
     if converged and (over := prob.overloaded(x, float(values.young_modulus))[0]):
         converged, why = False, over
     sens, sigma, cov = _uncertainty(prob, x, drive, values, T, noise)
+    if not converged and why is None:  # a solver stuck where it started: an unseen load?
+        blind, why = unseen(prob, x, drive, values)
+        sigma[list(blind)] = np.inf
+        why = why or None
     z = x[prob.model.nq:]
     note = joined(extra.pop("note", ""), converged and confounded(cov, n))
     return make_result(prob.model, x, T, NewtonResult(x, converged, iterations, res.residual, 0),

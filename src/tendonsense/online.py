@@ -17,7 +17,7 @@ from .fastpath import live
 from .filtering import MotionFilter
 from .forward import INADMISSIBLE
 from .inputs import WALK, Noise, check_noise, check_stuck, sliding as check_sliding
-from .problem import Problem, confounded
+from .problem import Problem, confounded, unseen
 from .result import SampleEstimate, joined
 from .sliding import DIRECTION, GIVEN, band_note, band_range
 from .statics import solve_system
@@ -197,8 +197,9 @@ class OnlineEstimator:
                                                  values)
         if prob.located:
             self._search_cost = _clock() - t0
-        if not converged:
-            return self._failed(note, row)
+        if not converged:  # (stuck where it started: an unseen load?)
+            why = "" if prob.located else unseen(prob, x, drive, values)[1]
+            return self._failed(why or note, row)
         drive = self._ref.drive(T, targets)  # (located: at the X found)
         restart = x
         if self._state is None:  # a state whose carry is at x already

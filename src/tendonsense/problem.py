@@ -213,6 +213,43 @@ def reduced_jacobians(prob: Problem, x, drive, values: Values):
     return -yq @ sol[:, :prob.n_z], -yq @ sol[:, prob.n_z:]
 
 
+#: a magnitude whose strain the measured lengths' gradients span less than this fraction of
+#: is unseen (:func:`unseen`; by symmetry the fraction is then exactly 0)
+UNSEEN = 1e-9
+
+
+def unseen(prob: Problem, x, drive, values: Values) -> tuple[tuple[int, ...], str]:
+    """The magnitudes whose size the readings cannot tell at ``x`` and why (``()``, '' if
+    none): the strain a
+    change of each makes (``E_q⁻¹ E_z``) is orthogonal, to :data:`UNSEEN`, to every measured
+    length's gradient ``y_q`` — e.g. a force across the plane in which the measured tendons
+    bend the rod, which by symmetry changes their lengths at second order only. Each
+    estimate's Newton matrix is then singular: a solver stops where it started."""
+    nq, x = prob.model.nq, np.asarray(x, float)
+    Eq, Ez, _, yq = (np.asarray(a) for a in _jacobians_fn(prob.model.structure, prob.measured)(
+        x[:nq], x[nq:], drive.tensions, drive, prob.unknowns, values))
+    with np.errstate(all="ignore"):
+        d = np.linalg.solve(Eq, Ez[:, :prob.n_magnitudes])
+        seen = np.linalg.norm(np.linalg.qr(yq.T)[0].T @ d, axis=0) / np.linalg.norm(d, axis=0)
+    blind = [k for k in range(prob.n_magnitudes) if seen[k] < UNSEEN]
+    if not blind:
+        return (), ""
+    names = [prob.robot.tendon_names[j] for j in prob.measured]
+    what = []
+    for k in blind:
+        F = np.asarray(prob.unknowns.forces, float)[k]
+        p = np.flatnonzero(np.any(F != 0, axis=1))
+        what.append(f"unknown {k + 1} (the force along ({', '.join(f'{c:g}' for c in F[p[0]])})"
+                    f" at X = {prob.load_X[p[0]]:g} m)" if p.size else
+                    f"unknown {k + 1} (gravity's scale)")
+    return tuple(blind), (f"the measured tendon{'s' if len(names) > 1 else ''} "
+            f"({', '.join(names)}) do{'es' if len(names) == 1 else ''} not change length with "
+            f"{' or '.join(what)} at the shape reached: the readings cannot tell "
+            f"{'its' if len(blind) == 1 else 'their'} size (is it across the plane the "
+            f"measured tendons bend the rod in? give a direction they see, or measure a tendon "
+            f"it stretches)")
+
+
 def band(dz_dm: np.ndarray, n_lengths: int, tensions: np.ndarray, noise: Noise) -> np.ndarray:
     """1-σ band of the magnitudes from their sensitivity ``dz_dm`` (…, n_z, m) to [lengths;
     tensions] (first-order propagation of the sensor noise, as in
