@@ -243,3 +243,32 @@ def test_a_taken_port_is_refused_clearly():
                            capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert r.returncode == 1 and not r.stdout
     assert f"cannot serve the view on 127.0.0.1:{port}" in r.stderr
+
+
+def test_a_tendons_colour_follows_its_tension_along_it():
+    """Each segment of a tendon in the scene takes its own tension (eq. 10, as the shape
+    figures): pulled in the colour fades from the actuator's (the reddest) toward the anchor,
+    paid out it grows, stuck it is one colour; the anchor's segment at T exp(∓μψ)."""
+    from tendonsense import load_robot
+    from tendonsense.forward import solve
+    from tendonsense.tendons import turning_along
+    from tendonsense.view import Shown, Viewer
+    robot = load_robot(ROOT / "examples" / "paper_prototype.toml")
+    result = solve(robot, {"t1": 2.0})
+    viewer = Viewer(robot, 0)
+    try:
+        shown = viewer._shown(result, None, (), (), None, "", time.monotonic())[0]
+        for sign in (1.0, -1.0, 0.0):
+            viewer.draw(Shown(shown.q, shown.tensions, signs=np.array([sign, 1.0, 1.0])))
+            red = viewer.tendons[0].colors[:, 0, 0].astype(float)
+            path = viewer.tendons[0].points
+            psi = turning_along(np.concatenate([path[:, 0], path[-1:, 1]]),
+                                path[0, 1] - path[0, 0])
+            share = np.exp(-sign * robot.tendons[0].friction * (psi - psi.max() * (sign < 0)))
+            assert np.allclose(red, (40 + 215 * share).astype(int), atol=1), (sign, red)
+            if sign:
+                assert np.all(np.sign(np.diff(red)) * sign <= 0) and np.ptp(red) > 30
+            else:
+                assert np.ptp(red) == 0
+    finally:
+        viewer.close()

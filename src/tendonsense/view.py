@@ -1,6 +1,7 @@
 """A live 3-D view in the browser (viser, an optional extra: ``pip install tendonsense[view]``).
 
-:class:`Viewer` serves a scene of the robot — backbone, disks, tendons coloured by tension,
+:class:`Viewer` serves a scene of the robot — backbone, disks, tendons coloured by their
+tension along them (eq. 10, as the shape figures),
 markers, force arrows (a located force at its X with its 1-σ band along the rod) — with the
 numbers beside it and a time plot of the last seconds. :meth:`Viewer.push` only stores the
 newest result; a drawing thread redraws it at a bounded rate, so that the estimator it
@@ -27,6 +28,7 @@ from . import inputs
 from .forward import model_for, solve
 from .kinematics import frames_fn
 from .robot import Robot
+from .tendons import turning_along
 
 #: redraws per second at most
 RATE = 25.0
@@ -61,7 +63,8 @@ def _viser():
 @dataclass
 class Shown:
     """What one redraw shows: the shape (q), tensions, forces [(X, f N global)], located
-    forces' σ bands [(X, σ)], the text beside the scene and one time-plot sample."""
+    forces' σ bands [(X, σ)], the text beside the scene, one time-plot sample and each
+    tendon's friction sign (:func:`~tendonsense.inputs.friction_signs`; None: pulled in)."""
 
     q: np.ndarray
     tensions: np.ndarray
@@ -70,6 +73,7 @@ class Shown:
     text: str = ""
     plot: dict | None = None  # {"t": s, series name: value}
     ok: bool = True
+    signs: np.ndarray | None = None
 
 
 class Viewer:
@@ -145,10 +149,14 @@ class Viewer:
         self.disks = sv.scene.add_point_cloud(
             "/disks", points=np.zeros((max(len(disks), 1), 3)), colors=DISKS,
             point_size=0.5 * r, point_shape="circle", visible=bool(disks))
-        self.tendons = [sv.scene.add_spline_catmull_rom(
-            f"/tendons/{t.name}", points=straight, color=(120, 120, 120), thickness=2.0,
-            thickness_units="screen")
-            for t in robot.tendons]
+        self.tendons = []  # a segment between two points of its route: its own tension
+        for t in robot.tendons:
+            n = len(self._X) if t.continuous else len(t.disks)
+            segments = np.stack([straight[:n - 1], straight[1:n]], axis=1)
+            self.tendons.append(sv.scene.add_line_segments(
+                f"/tendons/{t.name}", points=segments,
+                colors=np.full(segments.shape, 120, np.uint8), thickness=2.0,
+                thickness_units="screen"))
         self.arrows = None
         self.bands = []
         self.text = sv.gui.add_markdown("")
@@ -225,7 +233,10 @@ class Viewer:
                 f"{n} {v * 1e3:+.3f} mm" for n, v in disp.items()))
         rows.append("tensions: " + ", ".join(f"{n} {v:.3f} N"
                                              for n, v in zip(robot.tendon_names, Tv)))
-        return Shown(q, Tv, shown_forces, bands, "  \n".join(rows), plot, converged), tip
+        said = getattr(result, "sliding", ()) or ()  # a series' sample: each tendon's
+        signs = inputs.friction_signs(robot, dict(zip(robot.tendon_names, said)) or None)
+        return Shown(q, Tv, shown_forces, bands, "  \n".join(rows), plot, converged,
+                     signs), tip
 
     # ------------------------------------------------------------------ drawing
     def _loop(self):
@@ -285,16 +296,23 @@ class Viewer:
                 off = np.array([m.offset for m in robot.markers], float)
                 self.markers.points = p[n + nd:n + nd + nm] + np.einsum(
                     "nij,nj->ni", R[n + nd:n + nd + nm], off)
-            Tmax = max(float(np.max(shown.tensions, initial=0.0)), 1e-12)
+            paths, along = [], []
+            signs = np.ones(len(robot.tendons)) if shown.signs is None else shown.signs
             for j, t in enumerate(robot.tendons):
                 if t.continuous:
                     Xs, P, Rs = self._X, p[:n], R[:n]
                 else:
                     idx = [n + int(np.searchsorted(self._disk_X, x)) for x in t.disks]
                     Xs, P, Rs = np.array(t.disks), p[idx], R[idx]
-                self.tendons[j].points = P + np.einsum("nij,nj->ni", Rs, t.offset(Xs, L))
-                self.tendons[j].color = _tension_colour(shown.tensions[j] / Tmax
-                                                        if shown.tensions[j] > 0 else -1)
+                paths.append(P + np.einsum("nij,nj->ni", Rs, t.offset(Xs, L)))
+                along.append(shown.tensions[j] * np.exp(  # eq. 10, each segment's tension
+                    -signs[j] * t.friction * turning_along(paths[-1], Rs[0][:, 0])))
+            Tmax = max([float(a.max(initial=0.0)) for a in along] + [1e-12])
+            for j, (path, T) in enumerate(zip(paths, along)):
+                colours = np.array([_tension_colour(v / Tmax if shown.tensions[j] > 0 else -1)
+                                    for v in T], np.uint8)
+                self.tendons[j].points = np.stack([path[:-1], path[1:]], axis=1)
+                self.tendons[j].colors = np.repeat(colours[:, None], 2, axis=1)
             self._draw_forces(shown, p[n + nd + nm:n + nd + nm + nf], L)
             self._draw_bands(p[n + nd + nm + nf:].reshape(len(band_X), BAND_POINTS, 3))
             if tip is None:
@@ -405,7 +423,7 @@ def _refused(last, note, t):
     shown, tip = last
     text = f"**⚠ SAMPLE REFUSED: {note}**  \n" + shown.text.split("  \n", 1)[-1]
     return Shown(shown.q, shown.tensions, shown.forces, shown.bands, text,
-                 {**(shown.plot or {}), "t": t}, False), tip
+                 {**(shown.plot or {}), "t": t}, False, shown.signs), tip
 
 
 def _tension_colour(level: float):
