@@ -151,11 +151,15 @@ def test_calibration_errors_in_mm(monkeypatch, tmp_path):
     monkeypatch.setattr(plotting, "_save", lambda fig, path: fig)
     fit = SimpleNamespace(snapshot_errors=[(0.001, 2e-5), (0.002, 3e-5)], crossval=None,
                           parameters={"young_modulus": 1.0e6}, sigma={"young_modulus": 2e4},
-                          robot=SimpleNamespace(name="proto"), warning="far off", misfit=3.0)
+                          robot=SimpleNamespace(name="proto"), warning="far off", misfit=3.0,
+                          noise=(5e-4, 1e-4))
     fig = plotting.calibration(fit, tmp_path / "c.png", "snaps.csv (2 snapshots)")
     markers, lengths = fig.axes
     plt.close(fig)
     assert "(mm)" in markers.get_ylabel() and "(mm)" in lengths.get_ylabel()
+    # the noise assumed, as the same RMS: a marker's distance √3 σ, a length σ (in mm)
+    assert [ax.lines[0].get_ydata()[0] for ax in (markers, lengths)] == pytest.approx(
+        [np.sqrt(3) * 0.5, 0.1])
     # the title says what was fitted (± 1 σ, units), to what, and a warning given
     assert markers.get_title() == ("Calibration of proto from snaps.csv (2 snapshots)\n"
                                    "fitted young_modulus = 1e+06 ± 2e+04 Pa (1 σ)\n"

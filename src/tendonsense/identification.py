@@ -80,6 +80,8 @@ class Identified:
     #: data and the noise is as assumed)
     misfit: float | None = None
     warning: str = ""  # a converged fit that does not explain the data: why to doubt it
+    #: the noise the fit assumed (1 σ, m): a marker coordinate, a tendon length change
+    noise: tuple[float, float] | None = None
 
     def to_json(self) -> dict:
         out = {**self.parameters, "sigma": self.sigma, "marker_rmse": self.marker_rmse,
@@ -454,7 +456,7 @@ def identify(robot: Robot, snapshots: Sequence[Snapshot],
             f" range (these data push {'it' if len(zero) == 1 else 'them'} below): not "
             f"determined, no ± given", warning)
     return Identified(fitted, *_errors(parts), *initial, converged, it, new_robot, folds,
-                      per_snapshot, sigma, note, ratio, warning)
+                      per_snapshot, sigma, note, ratio, warning, (marker_noise, length_noise))
 
 
 def _cross_validate(setup: _Setup, snapshots, theta, qs, fitted_errors, max_iterations,
@@ -641,4 +643,4 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
     return Identified({"damping": eta}, *errors(dp, dy), *errors(*initial),
                       bool(found.success) and not edge, evaluations[0],
                       fitted, sigma={"damping": sigma}, note=note,
-                      misfit=ratio, warning=warning)
+                      misfit=ratio, warning=warning, noise=(marker_noise, length_noise))

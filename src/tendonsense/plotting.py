@@ -599,7 +599,9 @@ def location_profile(result, path, length_noise: float | None = None):
 
 def calibration(fit, path, source: str | None = None):
     """Per snapshot: the misfit after the fit and, with cross-validation, the error of its
-    prediction by the parameters fitted without it (marker and tendon-length errors in mm);
+    prediction by the parameters fitted without it (marker and tendon-length errors in mm),
+    beside what the noise the fit assumed leaves (a marker's 1-σ per coordinate is √3 σ as
+    an RMS distance);
     ``source`` (e.g. the snapshots file) goes in the title with the robot's name and the
     parameters fitted."""
     kinds = [(col, kind) for col, kind in enumerate(("marker", "displacement"))
@@ -618,6 +620,12 @@ def calibration(fit, path, source: str | None = None):
             ax.bar(idx + width / 2, left * 1e3, width, color="tab:orange",
                    label="predicted, fitted without it")
             top = max(top, np.nanmax(np.append(left, 0.0)))
+        if fit.noise is not None:  # what the noise alone leaves, in the same RMS
+            level = fit.noise[col] * (np.sqrt(3.0) if kind == "marker" else 1.0)
+            ax.axhline(level * 1e3, color="black", ls="--", lw=1, label=(
+                f"noise assumed ({'√3 × ' if kind == 'marker' else ''}"
+                f"{fit.noise[col] * 1e3:.3g} mm)"))
+            top = max(top, level)
         if top > 0:
             ax.set_ylim(0.0, 1.3 * top * 1e3)
         ax.set_ylabel(f"RMS {'marker' if kind == 'marker' else 'tendon-length'} error (mm)")
