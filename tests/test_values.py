@@ -238,6 +238,36 @@ def test_a_program_called_again_skips_its_signature(tmp_path, monkeypatch):
     assert len(signatures) == 5 and len(program.loaded) == 4
 
 
+def test_the_kept_programs_stay_within_the_cache_limit(tmp_path, monkeypatch):
+    """Kept programs take at most ``settings.cache_limit`` bytes: a new one pushes out the
+    least recently used (a program loaded again counts as used), never itself; the others
+    still load, and an evicted one compiles again with the same answer."""
+    import jax.numpy as jnp
+    from tendonsense import settings
+    monkeypatch.setenv("TENDONSENSE_CACHE_DIR", str(tmp_path))
+    folder = tmp_path / "programs"
+    x = np.arange(3.0)
+
+    def run(k):  # a fresh program object: loads the kept executable if there is one
+        return float(compiled.Program(lambda a: jnp.sum(a) * k, f"evict{k}", "test")(x))
+
+    for k in (1, 2, 3):
+        assert run(k) == 3.0 * k
+    files = {k: next(folder.glob(f"evict{k}-*.exe")) for k in (1, 2, 3)}
+    for k, f in files.items():  # oldest first: 1, 2, 3; then 1 used again
+        os.utime(f, (1000.0 * k, 1000.0 * k))
+    assert run(1) == 3.0 and files[1].stat().st_mtime > 3000.0
+    size = max(f.stat().st_size for f in files.values())
+    monkeypatch.setattr(settings, "cache_limit", 3 * size)
+    assert run(4) == 12.0
+    left = sorted(f.name.split("-")[0] for f in folder.glob("*.exe"))
+    assert left == ["evict1", "evict3", "evict4"], left
+    assert not files[2].with_suffix(".lock").exists()
+    monkeypatch.setattr(settings, "cache_limit", 0)
+    assert run(2) == 6.0  # compiled again, kept alone
+    assert [f.name.split("-")[0] for f in folder.glob("*.exe")] == ["evict2"]
+
+
 def test_programs_compile_unpinned(monkeypatch):
     """Every compilation runs inside :func:`settings.unpinned` (a process kept to a core
     compiles on the cores it had)."""

@@ -5,7 +5,9 @@ lowering and compiling it again. A kept program is keyed by its name, the struct
 argument signature, the machine (platform and CPU), XLA's flags and a hash of this package's
 source (the compiler options of :func:`~tendonsense.settings.compiler_options` included) and
 of the JAX version, so that an edited model never runs a stale program; a process that needs
-a program another is compiling waits for it. Without a cache directory, or if an executable
+a program another is compiling waits for it. The kept programs take at most
+:data:`settings.cache_limit <tendonsense.settings.cache_limit>` bytes: the least recently
+used go first. Without a cache directory, or if an executable
 cannot be kept, it is compiled in this process alone, with the same options.
 """
 
@@ -18,7 +20,7 @@ import platform
 import tempfile
 import threading
 import weakref
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from functools import lru_cache
 from pathlib import Path
 
@@ -113,6 +115,8 @@ class Program:
                 _write_atomic(path, _serialize(compiled))
             except Exception:  # an executable that cannot be kept still runs
                 pass
+            else:
+                _evict(path.parent, settings.cache_limit, keep=path)
         return compiled
 
 
@@ -161,11 +165,36 @@ def release() -> None:
 
 
 def _kept(path: Path):
-    """The executable kept at ``path``, or None (none kept yet, or unreadable)."""
+    """The executable kept at ``path``, or None (none kept yet, or unreadable); marked as used
+    (its modification time: :func:`_evict` removes the least recently used first)."""
     try:
-        return _deserialize(path.read_bytes())
+        kept = _deserialize(path.read_bytes())
     except Exception:
         return None
+    with suppress(OSError):
+        os.utime(path)
+    return kept
+
+
+def _evict(folder: Path, limit: int, keep: Path | None = None) -> None:
+    """The least recently used executables in ``folder`` (and their lock files) removed until
+    those left take at most ``limit`` bytes; ``keep`` stays (the one just written)."""
+    try:
+        kept = [(e.stat().st_mtime, e.stat().st_size, Path(e.path)) for e in os.scandir(folder)
+                if e.name.endswith(".exe")]
+    except OSError:
+        return
+    total = sum(size for _, size, _ in kept)
+    for _, size, path in sorted(kept):
+        if total <= limit:
+            break
+        if path == keep:
+            continue
+        with suppress(OSError):  # (another process may have removed it first)
+            path.unlink()
+            total -= size
+        with suppress(OSError):
+            path.with_suffix(".lock").unlink()
 
 
 def _serialize(compiled) -> bytes:

@@ -20,6 +20,12 @@ def cache_dir() -> Path | None:
     return Path(path) if path else None
 
 
+#: the most the kept programs (``cache_dir()/programs``) may take, in bytes: when a new one
+#: would take them over it, the least recently used go (programs of other versions of this
+#: package or of robots not run for a while; a program loaded again counts as used). A robot's
+#: programs take some 10-40 MB.
+cache_limit: int = 2 * 1024**3
+
 #: called once, with a message, when this process first compiles a program where no kept
 #: one could be loaded (:mod:`tendonsense.compiled`): the command line prints it on a terminal,
 #: so that a first run's wait is not taken for a hang
