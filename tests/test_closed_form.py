@@ -45,3 +45,29 @@ def test_prototype_t1_088N_keeps_tendon_length(prototype):
     res = solve(prototype, {"t1": 0.88})
     assert res.converged
     assert abs(res.displacements["t1"]) < 1e-3
+
+
+@pytest.mark.parametrize("ratio", [0.97, 1.03, 1.5])
+def test_a_column_past_eulers_load_is_said_to_be_unstable(ratio):
+    """A straight cantilever column under an end load P along its axis is in equilibrium at
+    any P, stable below Euler's P_cr = π² EI / 4L² and unstable above: a solve past it says
+    so, with the stiffness ratio 1 − P/P_cr of its first mode (it was a straight rod without
+    a word); an estimate that lands there likewise; below P_cr no such note."""
+    from tendonsense.estimation import PointForceUnknown, estimate
+    r, L, E = 0.005, 0.25, 1e6
+    robot = robot_from(rod=uniform_rod(r, L, E), gravity={"acceleration": [0, 0, 0]},
+                       tendon=[{"name": "t", "offset_base": [0, 0.004],
+                                "offset_tip": [0, 0.004], "friction": 0.0, "disks": 9}])
+    P = ratio * np.pi**2 * E * (np.pi * r**4 / 4) / (4 * L**2)
+    res = solve(robot, point_forces=[(L, (-P, 0.0, 0.0))])
+    assert np.abs(res.backbone[:, 1:]).max() < 1e-12  # the straight rod, by symmetry
+    if ratio < 1:
+        assert res.converged and "note" not in res.extra
+        return
+    note = res.extra["note"]
+    assert res.converged and note.startswith("unstable equilibrium")
+    lam = float(note.split("stiffness ratio ")[1].split(";")[0])
+    assert lam == pytest.approx(1 - ratio, abs=2e-3 * ratio)  # GVS's P_cr a little above
+    est = estimate(robot, {"t": res.displacements["t"]}, {"t": 0.0},
+                   [PointForceUnknown(L, (-1.0, 0.0, 0.0))])
+    assert est.converged and est.extra["note"].startswith("unstable equilibrium")

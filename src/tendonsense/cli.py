@@ -980,7 +980,7 @@ def _plot_shape(args, robot, result, unknowns=()):
     if "location_profile" in result.extra:
         written.append(plotting.location_profile(result, _beside(args.plot, "_location"),
                                                  args.length_noise))
-    what = {"solve": "shape under the given tensions (forward statics)",
+    what = {"solve": "shape under the given loads (forward statics)",
             "fk": "shape for the given tendon length changes (forward kinematics)",
             "estimate": "shape and forces estimated from tendon readings"}[args.command]
     plotting.shape(result, args.plot, robot, forces=_point_forces(args), estimated=estimated,
@@ -1191,7 +1191,7 @@ def _print_result(result, as_json: bool, title: str, robot, unknowns=()):
         return
     if not result.converged:
         print(f"{title} ({robot.name}): NOT CONVERGED: {result.extra.get('note', '')}")
-        print("no result: the last iterate is not a solution (--json gives it, marked "
+        print("no result: the last iterate is no shape the robot holds (--json gives it, marked "
               "\"converged\": false; --plot draws it, stamped)")
         return
     print(f"{title} ({robot.name}): converged in {result.iterations} "

@@ -24,7 +24,7 @@ from .inputs import (GravityUnknown, Noise, PointForceUnknown, Unknown,  # noqa:
                      check_noise)
 from .model import Values
 from .problem import (Problem, _jacobians_fn, confounded, noise_covariance,  # noqa: F401
-                      problem, reduced_jacobians, unseen)
+                      misfit_note, problem, reduced_jacobians, unseen, unstable_at)
 from .result import Result, joined
 from .robot import Robot, check_robot
 from .sliding import band_note, band_range
@@ -254,13 +254,20 @@ def _result(prob: Problem, x, drive, values, T, noise, converged, iterations, re
     n = prob.n_magnitudes
     if converged and (over := prob.overloaded(x, float(values.young_modulus))[0]):
         converged, why = False, over
-    sens, sigma, cov = _uncertainty(prob, x, drive, values, T, noise)
+    sens, sigma, cov, (Jz, JT) = _uncertainty(prob, x, drive, values, T, noise)
     if not converged and why is None:  # a solver stuck where it started: an unseen load?
         blind, why = unseen(prob, x, drive, values)
         sigma[list(blind)] = np.inf
         why = why or None
     z = x[prob.model.nq:]
-    note = joined(extra.pop("note", ""), converged and confounded(cov, n))
+    if converged and len(prob.measured) > prob.n_z:  # a least-squares fit: is it one?
+        y = shape_outputs(prob.model.structure, values, x[:prob.model.nq])[2]
+        columns = np.flatnonzero(np.asarray(T, float) != 0)
+        extra["note"] = joined(extra.get("note", ""), misfit_note(
+            Jz, JT[:, columns], y[list(prob.measured)] - np.asarray(drive.targets),
+            np.asarray(T, float)[columns], noise))
+    note = joined(extra.pop("note", ""), converged and confounded(cov, n),
+                  converged and unstable_at(prob, x, drive, values))
     return make_result(prob.model, x, T, NewtonResult(x, converged, iterations, res.residual, 0),
                        why=why,
                        magnitudes=z[:n], sigma=sigma[:n],
@@ -387,4 +394,4 @@ def _uncertainty(prob: Problem, x, drive, values, T, noise: Noise):
     cov = noise_covariance(np, np.concatenate([pinv, dz_dT[:, columns]], axis=1),
                            len(prob.measured), np.asarray(T, float)[columns], noise.length,
                            noise.tension)
-    return sens, np.sqrt(np.diag(cov)), cov
+    return sens, np.sqrt(np.diag(cov)), cov, (Jz, JT)

@@ -20,7 +20,7 @@ from .model import Model
 from .result import Result
 from .robot import Robot, check_robot
 from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, derivatives, marker_positions,
-                      shape_outputs, solve_system)
+                      shape_outputs, solve_system, tangent, unstable)
 
 #: a tension below −TENSION_TOL times the largest (at least 1 N) is a tendon pushing: no
 #: solution
@@ -99,9 +99,12 @@ def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
     which sets the sense of its friction."""
     model = model_for(robot)
     drive = _statics_drive(robot, tensions, point_forces)
-    res = solve_system(model.structure, sliding_values(robot, model.values, sliding), (),
-                       drive, Unknowns.none(len(robot.tendons), drive.load_X.shape[0]), q0)
-    return make_result(model, res.x, np.asarray(drive.tensions), res)
+    values = sliding_values(robot, model.values, sliding)
+    unknowns = Unknowns.none(len(robot.tendons), drive.load_X.shape[0])
+    res = solve_system(model.structure, values, (), drive, unknowns, q0)
+    shaky = unstable(values, tangent(values, res, model.nq)) if bool(res.converged) else ""
+    return make_result(model, res.x, np.asarray(drive.tensions), res,
+                       **({"extra": {"note": shaky}} if shaky else {}))
 
 
 def forward_kinematics(robot: Robot, displacements: Mapping[str, float],

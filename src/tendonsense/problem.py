@@ -19,7 +19,7 @@ from .forward import model_for
 from .inputs import GravityUnknown, Noise, PointForceUnknown, Unknown, check_point_forces
 from .model import Model, Structure, Values
 from .robot import Robot, check_robot
-from .statics import CACHE_SIZE, Drive, Unknowns, terms
+from .statics import CACHE_SIZE, Drive, Unknowns, terms, unstable
 
 
 @dataclass(frozen=True, eq=False)
@@ -213,6 +213,15 @@ def reduced_jacobians(prob: Problem, x, drive, values: Values):
     return -yq @ sol[:, :prob.n_z], -yq @ sol[:, prob.n_z:]
 
 
+def unstable_at(prob: Problem, x, drive, values: Values) -> str:
+    """:func:`~tendonsense.statics.unstable` for the solution ``x`` of ``prob`` (its
+    magnitudes held, as dead loads), from the Jacobians the 1-σ band uses."""
+    nq, x = prob.model.nq, np.asarray(x, float)
+    Eq = _jacobians_fn(prob.model.structure, prob.measured)(
+        x[:nq], x[nq:], drive.tensions, drive, prob.unknowns, values)[0]
+    return unstable(values, Eq)
+
+
 #: a magnitude whose strain the measured lengths' gradients span less than this fraction of
 #: is unseen (:func:`unseen`; by symmetry the fraction is then exactly 0)
 UNSEEN = 1e-9
@@ -286,6 +295,37 @@ def _scaled(xp, dz_dm, n_lengths, tensions, length, tension):
     scale = xp.concatenate([xp.full((*tensions.shape[:-1], n_lengths), length),
                             tension * xp.abs(tensions)], axis=-1)
     return dz_dm * scale[..., None, :]
+
+
+#: a least-squares estimate's length misfit whose χ² is above this quantile of its
+#: distribution under the sensor noise alone is more than that noise explains
+MISFIT_QUANTILE = 0.999
+
+
+def misfit_note(Jz, JT, misfit, tensions, noise: Noise) -> str:
+    """A note where the length misfit ``misfit`` (m, per measured tendon) a least-squares
+    estimate leaves is more than the sensor noise explains, or '': its χ² against the
+    covariance the noise gives that misfit (``Jz``, ``JT``: the measured lengths'
+    sensitivities to the magnitudes and to the ``tensions``, the length noise and the relative
+    tension noise through ``JT``, projected off what the magnitudes absorb), over
+    ``m − n_z`` degrees of freedom."""
+    from scipy.special import chdtri
+    Jz, JT, e = (np.asarray(a, float) for a in (Jz, JT, misfit))
+    m, n_z = Jz.shape
+    if m <= n_z:
+        return ""
+    P = np.eye(m) - Jz @ np.linalg.pinv(Jz)
+    C = noise.length**2 * np.eye(m) + (JT * (noise.tension * np.asarray(tensions, float))**2
+                                       ) @ JT.T
+    chi2 = float(e @ np.linalg.pinv(P @ C @ P, hermitian=True) @ e)
+    dof = m - n_z
+    if not chi2 > chdtri(dof, 1 - MISFIT_QUANTILE):
+        return ""
+    rms = float(np.sqrt(np.mean(e**2)))
+    return (f"the readings disagree beyond their noise: the measured lengths are met to "
+            f"{rms * 1e3:.3g} mm RMS, {np.sqrt(chi2 / dof):.2g} times what the length and "
+            f"tension noise explain (is a tendon swapped or mislabelled, a force's X or "
+            f"direction wrong, a load not given?); the ± assumes the noise alone")
 
 
 #: two magnitudes whose estimates correlate beyond this are confounded: the readings fix a

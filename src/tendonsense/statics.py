@@ -165,6 +165,7 @@ class NewtonResult(NamedTuple):
     iterations: jax.Array  # accepted Newton steps, continuation stages included
     residual: jax.Array  # ‖r‖ / (load size + floor)
     evaluations: jax.Array  # residual + Jacobian evaluations
+    jacobian: jax.Array | None = None  # of the scaled residual at x (the last accepted point)
 
 
 def _merit(r):
@@ -214,7 +215,7 @@ def newton_solver(structure: Structure, measured: tuple[int, ...], n_z: int):
             Jt, (rt, load_t) = linearise(xt, st["target"])
             ok = jnp.isfinite(_merit(rt)) & (_merit(rt) <= (1 - 2e-4 * st["alpha"]) * st["m"])
             conv = ok & (jnp.linalg.norm(rt) <= num.tolerance * (load_t + floor))
-            accepted = dict(st, x=xt, r=rt, load=load_t, m=_merit(rt),
+            accepted = dict(st, x=xt, r=rt, J=Jt, load=load_t, m=_merit(rt),
                             dx=linalg.solve(Jt, -rt), alpha=jnp.asarray(1.0),
                             it=st["it"] + 1, total=st["total"] + 1)
             rejected = dict(st, alpha=st["alpha"] / 2)
@@ -240,13 +241,15 @@ def newton_solver(structure: Structure, measured: tuple[int, ...], n_z: int):
             return out
 
         n = x0.shape[0]
-        st = dict(r=jnp.zeros(n), load=jnp.asarray(0.0), total=jnp.asarray(0),
+        st = dict(r=jnp.zeros(n), J=jnp.zeros((n, n)), load=jnp.asarray(0.0),
+                  total=jnp.asarray(0),
                   evals=jnp.asarray(0), status=jnp.asarray(0))
         st = restart(st, x0, jnp.asarray(0.0), jnp.asarray(1.0), jnp.asarray(0.25),
                      jnp.asarray(0))
         st = jax.lax.while_loop(cond, body, st)
         return NewtonResult(st["x"], st["status"] == 1, st["total"],
-                            jnp.linalg.norm(st["r"]) / (st["load"] + floor), st["evals"])
+                            jnp.linalg.norm(st["r"]) / (st["load"] + floor), st["evals"],
+                            st["J"])
 
     return Program(solve, "newton", (structure, measured, n_z))
 
@@ -290,6 +293,37 @@ def _outputs_fn(structure: Structure):
                 tendons.length_changes(structure, values, grid, q), admissible(values, q))
 
     return Program(out, "outputs", structure)
+
+
+#: an equilibrium whose stiffness ratio (:func:`unstable`) falls below −UNSTABLE is unstable
+UNSTABLE = 1e-6
+
+
+def tangent(values: Values, res: NewtonResult, nq: int) -> np.ndarray:
+    """``∂E/∂q`` (unscaled, eq. 7) at a Newton solution, from the Jacobian of its scaled
+    residual (:func:`residual`: ``J_qq = L⁻¹ ∂E/∂q / √E``, ``K = L Lᵀ``)."""
+    L = np.linalg.cholesky(np.asarray(values.stiffness(), float))
+    return np.sqrt(float(values.young_modulus)) * L @ np.asarray(res.jacobian, float)[:nq, :nq]
+
+
+def unstable(values: Values, tangent) -> str:
+    """Why an equilibrium whose tangent stiffness is ``tangent`` (``∂E/∂q`` with the tensions
+    and any unknowns held) is unstable, or '': a mode whose stiffness the loads have overcome.
+    The eigenvalues λ of ``(E K)⁻¹ ∂E/∂q`` — the tangent stiffness over the material's (the
+    Hessian of the potential energy where there is no friction) — are 1 for an unloaded rod
+    and ``1 − P/P_cr``
+    for a column under an end load P (Euler's P_cr); one below −:data:`UNSTABLE` grows from any
+    disturbance: the rod buckles or snaps away from this shape."""
+    K = float(values.young_modulus) * np.asarray(values.stiffness(), float)
+    with np.errstate(all="ignore"):
+        lam = np.linalg.eigvals(np.linalg.solve(K, np.asarray(tangent, float)))
+    worst = float(np.min(lam.real)) if np.all(np.isfinite(lam)) else 0.0
+    if worst >= -UNSTABLE:
+        return ""
+    return (f"unstable equilibrium: a mode of the rod has lost its stiffness to the loads "
+            f"(stiffness ratio {worst:.3g}; a column loaded past Euler's load has "
+            f"1 − P/P_cr): the rod would buckle or snap away from this shape to another, "
+            f"which this solution is not")
 
 
 def shape_outputs(structure: Structure, values: Values, q):
