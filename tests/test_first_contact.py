@@ -19,7 +19,7 @@ from tendonsense.forward import forward_kinematics, solve
 from tendonsense.identification import Snapshot, SnapshotError, identify
 from tendonsense.online import OnlineEstimator
 from tendonsense.simulation import simulate
-from tendonsense.tracking import estimate_series
+from tendonsense.tracking import estimate_series, solve_batch
 
 TIP = PointForceUnknown(0.25, (0, 0, -1))
 
@@ -132,6 +132,10 @@ def test_a_series_checks_its_readings_as_one_reading_is_checked(prototype):
     (lambda r: r.with_parameters(density=1.34), "density: 1.34 kg/m³ is lighter"),
     (lambda r: simulate(r, {"t1": 1.0}, duration=0.1, output_dt=0.2),
      "output_dt 0.2 s is longer than the duration 0.1 s"),
+    (lambda r: problem(r, ["t1", "t1"], [TIP, PointForceUnknown(0.1, (0, 0, -1))]),
+     "measured tendons: t1 listed twice"),
+    (lambda r: solve_batch(r, {"t1": [1.0, 2.0, 3.0], "t2": [1.0, 2.0]}),
+     "every tendon's tensions are one value or 3 (one a sample), got t2 (2)"),
 ])
 def test_the_python_api_says_what_it_expected(prototype, call, words):
     """A value of the wrong kind is named with what was expected, not a Python internal
@@ -1298,8 +1302,9 @@ def test_an_estimated_force_the_model_cannot_hold_is_no_estimate(prototype, tmp_
     assert not r.converged and r.magnitudes[0] > 1000 and "axial stiffness" in r.extra["note"]
     assert estimate(prototype, {"t1": -0.005}, {"t1": 2.1}, [TIP]).converged
     readings = [{"t1": -0.005}] * 2, [{"t1": 2.1}] * 2
-    assert not any(e.converged for e in estimate_series(problem(prototype, ["t1"], [near]),
-                                                         *readings))
+    series = estimate_series(problem(prototype, ["t1"], [near]), *readings)
+    # no estimate, and none reads as one: its magnitudes are NaN (they were 6891 N)
+    assert not any(e.converged for e in series) and np.isnan(series[0].magnitudes).all()
     assert all(e.converged for e in estimate_series(problem(prototype, ["t1"], [TIP]),
                                                     *readings))
     live = OnlineEstimator(problem(prototype, ["t1"], [near])).update({"t1": -0.005},
@@ -1339,6 +1344,21 @@ def test_a_force_the_measured_tendons_cannot_see_is_named(prototype):
     drive = prob.drive(T, y[list(prob.measured)])
     assert unseen(prob, seen.extra["x"], drive, prob.model.values) == ((), "")
     assert unseen(prob, 0 * seen.extra["x"], drive, prob.model.values) == ((), "")
+
+
+def test_an_overdetermined_estimate_that_misses_its_readings_says_so(prototype):
+    """Three measured tendons, one unknown: readings with t1's and t2's lengths swapped are
+    met to 0.77 mm RMS, far beyond their noise: the estimate (a least-squares fit) says so (it
+    was 0.068 N for 0.1 N, no word); the true readings and ones off by the length noise have
+    no such note."""
+    T = {"t1": 2.0, "t2": 0.3, "t3": 0.3}
+    y = solve(prototype, T, [(0.25, (0.0, 0.0, -0.1))]).displacements
+    words = "the readings disagree beyond their noise"
+    for lengths, flagged in (
+            (y, False), ({"t1": y["t1"] + 1e-4, "t2": y["t2"] - 1e-4, "t3": y["t3"]}, False),
+            ({"t1": y["t2"], "t2": y["t1"], "t3": y["t3"]}, True)):
+        r = estimate(prototype, lengths, T, [TIP])
+        assert r.converged and (words in r.extra.get("note", "")) == flagged, r.extra
 
 
 @pytest.mark.parametrize("edit, words", [
@@ -1433,3 +1453,27 @@ def test_a_damping_fit_takes_a_row_without_its_markers(prototype, tmp_path):
     assert "tip" not in samples[3].markers and not samples[3].error
     fit = identify_damping(robot, samples)
     assert fit.marker_rmse is not None and np.isfinite(fit.marker_rmse)
+
+
+@pytest.mark.parametrize("sep, words", [(";", "this one by ';'"), ("\t", "this one by tabs")])
+def test_a_log_not_separated_by_commas_is_named(tmp_path, sep, words):
+    """A log written with semicolons or tabs (a spreadsheet's export) is refused naming the
+    separator, before JAX (it was one giant column's name)."""
+    log = tmp_path / "log.csv"
+    log.write_text(sep.join(["time", "tension_t1", "tension_t2", "tension_t3",
+                             "displacement_t1"]) + "\n" + sep.join("0 2.1 0 0 -0.005".split())
+                   + "\n")
+    code, err, jax_loaded = refused_before_jax("estimate", PROTOTYPE, "--readings", log,
+                                               "--unknown", "0.25,0,0,-1")
+    assert code == 1 and "columns are separated by commas, " + words in err and not jax_loaded
+
+
+def test_a_frictionless_tendon_cannot_be_stuck(tmp_path):
+    """``--sliding t1=stuck`` on a tendon without friction was a range "between X and X": it
+    is refused, naming the tendon and why, before JAX."""
+    robot = tmp_path / "frictionless.toml"
+    robot.write_text(PROTOTYPE.read_text().replace("friction = 0.4", "friction = 0.0"))
+    code, err, jax_loaded = refused_before_jax(
+        "estimate", robot, "--displacement", "t1=-0.005", "--tension", "t1=2.1", "--unknown",
+        "0.25,0,0,-1", "--sliding", "t1=stuck")
+    assert code == 1 and "t1 has no friction (μ = 0)" in err and not jax_loaded, err

@@ -192,7 +192,15 @@ def resolution(robot: Robot, forces_gf=None, tensions=1.5,
         drive = prob.drive(np.array(tensions, float), np.array([truth.displacements[n]
                                                                   for n in names]))
         Jz, JT = reduced_jacobians(prob, est.extra["x"], drive, prob.model.values)
-        dT_dF = -np.linalg.solve(JT, Jz)  # (n_t, 3)
+        try:
+            dT_dF = -np.linalg.solve(JT, Jz)  # (n_t, 3)
+        except np.linalg.LinAlgError:
+            raise ValueError(
+                f"at fixed lengths this robot's tendon tensions are not determined by the tip "
+                f"force ({', '.join(names)}: ∂y/∂T is singular: more tendons than independent "
+                f"ways they load the rod, or two that pull alike); the analysis (§IV) is for "
+                f"the paper's three tendons at 120°"
+            ) from None
         detect = tension_resolution * np.abs(np.array(tensions, float))[:, None]
         delta = np.min(detect / np.maximum(np.abs(dT_dF), 1e-300), axis=0)  # N per component
         rows.append({"force_gF": np.asarray(f_gf, float).tolist(), "converged": True,

@@ -202,7 +202,8 @@ class _Setup:
 
     def values(self, log_ratio):
         """The model's values at ``θ = scale · exp(log_ratio)`` and θ by name."""
-        theta = dict(zip(self.params, self.scale * np.exp(log_ratio)))
+        with np.errstate(over="ignore"):  # (a trial step far out: inf, refused by the fit)
+            theta = dict(zip(self.params, self.scale * np.exp(log_ratio)))
         names = self.model.robot.tendon_names
         mu = np.array(self.model.values.friction, float)
         if "friction" in theta:

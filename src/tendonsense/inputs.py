@@ -299,13 +299,18 @@ def sliding(robot: Robot, directions: Mapping[str, str] | None,
     return out
 
 
-def stuck_error(name: str, tension: float, what: str = "") -> str:
-    """Why tendon ``name`` at ``tension`` (N) cannot be stuck, or '': only a tendon under
-    tension sticks in its guides (a slack one has no friction band; a tension that is no
-    tension is left to its own rule). ``what`` names the statement (``sliding NAME=stuck``)."""
-    return (f"{what or f'sliding {name}=stuck'}: {name} is slack (0 N): only a tendon under "
-            f"tension sticks (its friction band is then between in and out)"
-            if tension == 0 else "")
+def stuck_error(name: str, tension: float, what: str = "", friction: float | None = None
+                ) -> str:
+    """Why tendon ``name`` at ``tension`` (N), with its ``friction`` coefficient, cannot be
+    stuck, or '': only a tendon under tension and with friction sticks in its guides (a slack
+    or frictionless one has no friction band; a tension that is no tension is left to its own
+    rule). ``what`` names the statement (``sliding NAME=stuck``)."""
+    what = what or f"sliding {name}=stuck"
+    if friction == 0:
+        return (f"{what}: {name} has no friction (μ = 0): it slides freely in its guides, "
+                f"with one tension along it, and cannot stick")
+    return (f"{what}: {name} is slack (0 N): only a tendon under tension sticks (its friction "
+            f"band is then between in and out)" if tension == 0 else "")
 
 
 def stuck_located_error(name: str, what: str = "") -> str:
@@ -322,7 +327,8 @@ def check_stuck(robot: Robot, directions: Mapping[str, str] | None,
     the band is estimated at known points, as in a log): a ValueError naming the first."""
     stuck = [n for n, d in sliding(robot, directions).items() if d == "stuck"]
     for name in stuck:
-        if error := stuck_error(name, float(tensions.get(name, 0.0))):
+        if error := stuck_error(name, float(tensions.get(name, 0.0)), friction=robot.tendons[
+                robot.tendon_names.index(name)].friction):
             raise ValueError(error)
     if stuck and located:
         raise ValueError(stuck_located_error(stuck[0]))
@@ -500,6 +506,9 @@ def check_unknowns(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unk
     if not unknowns:
         raise ValueError("estimation needs at least one unknown load")
     measured = _sequence(measured, "measured tendons", "['t1']")
+    if twice := sorted({n for n in measured if measured.count(n) > 1}):
+        raise ValueError(f"measured tendons: {', '.join(map(str, twice))} listed twice (each "
+                         f"tendon's length is one reading)")
     for name in measured:
         if name not in robot.tendon_names:
             raise ValueError(f"displacement {name}: no such tendon (robot has "

@@ -132,6 +132,9 @@ def parse_header(header: Sequence[str], robot: Robot, source) -> Columns:
     if not utf8(header):
         raise ReadingsError(f"{source}: header: {NOT_UTF8}")
     tendons, markers = robot.tendon_names, robot.marker_names
+    if len(header) == 1 and (sep := next((c for c in ";\t|" if c in header[0]), None)):
+        raise ReadingsError(f"{source}: header: columns are separated by commas, this one by "
+                            f"{'tabs' if sep == chr(9) else repr(sep)} ({header[0][:40]!r}…)")
     _once(source, header, ReadingsError)
     measured = []
     for col in header:
@@ -212,7 +215,8 @@ def parse_row(i: int, raw: Sequence[str], columns: Columns, robot: Robot) -> Sam
     for name, d in sliding.items():
         if d == "stuck" and not error:
             error = stuck_error(name, values.get(f"tension_{name}", 0.0),
-                                f"column sliding_{name}: stuck")
+                                f"column sliding_{name}: stuck", robot.tendons[
+                                    robot.tendon_names.index(name)].friction)
     if error:  # its time stamp kept where it can be read
         t = _number(raw[header.index("time")]) if "time" in header and header.index(
             "time") < len(raw) else math.nan

@@ -98,7 +98,9 @@ def _plain(v):
 
 @dataclass(frozen=True, eq=False)
 class SampleEstimate:
-    """One sample of a series: magnitudes with their 1-σ band, markers (global, m)."""
+    """One sample of a series: magnitudes with their 1-σ band, markers (global, m). A sample
+    that is no estimate (``converged`` False) has not-a-number magnitudes, bands and located
+    X, whatever its solver reached (its ``x`` keeps the last iterate, its ``note`` why)."""
 
     magnitudes: np.ndarray
     sigma: np.ndarray
@@ -115,6 +117,11 @@ class SampleEstimate:
     magnitude_range: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # if stuck
 
     __repr__ = compact_repr
+
+    def __post_init__(self):
+        if not self.converged:  # (a list of them reads as numbers no more)
+            for name in ("magnitudes", "sigma", "locations", "location_sigma"):
+                object.__setattr__(self, name, np.full(np.shape(getattr(self, name)), np.nan))
 
     @staticmethod
     def failed(prob, note: str, x=None, iterations: int = 0) -> "SampleEstimate":

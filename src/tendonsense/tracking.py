@@ -352,6 +352,9 @@ def batch_inputs(robot: Robot, base, tensions, point_forces, values):
             if k not in names:
                 raise ValueError(f"tension {k}: no such tendon (robot has {', '.join(names)})")
         n = max((c.size for c in cols.values()), default=1)
+        if odd := [f"{k} ({c.size})" for k, c in cols.items() if c.size not in (1, n)]:
+            raise ValueError(f"batch: every tendon's tensions are one value or {n} (one a "
+                             f"sample), got {', '.join(odd)}")
         T = np.stack([np.broadcast_to(cols.get(k, np.zeros(1)), (n,)) for k in names], axis=1)
     else:
         T = np.asarray(tensions, float).reshape(-1, len(names))
