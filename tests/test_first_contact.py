@@ -1477,3 +1477,19 @@ def test_a_frictionless_tendon_cannot_be_stuck(tmp_path):
         "estimate", robot, "--displacement", "t1=-0.005", "--tension", "t1=2.1", "--unknown",
         "0.25,0,0,-1", "--sliding", "t1=stuck")
     assert code == 1 and "t1 has no friction (μ = 0)" in err and not jax_loaded, err
+
+
+def test_a_fit_of_a_force_no_measured_tendon_sees_is_no_estimate():
+    """Two tendons in the x–z plane, both measured, and an unknown force along y: the least-
+    squares fit stopped at once (its gradient 0) and said "converged, 0 ± 0 N"; it is no
+    estimate, named, its σ unbounded."""
+    from conftest import robot_from, uniform_rod
+    robot = robot_from(rod=uniform_rod(0.01, 0.25, 1e6), gravity={"acceleration": [0, 0, 0]},
+                       tendon=[{"name": n, "offset_base": [0, z], "offset_tip": [0, z],
+                                "friction": 0.0, "disks": 9}
+                               for n, z in (("a", 0.004), ("b", -0.004))])
+    T = {"a": 0.5, "b": 0.2}
+    y = solve(robot, T, [(0.25, (0.0, 0.02, 0.0))]).displacements
+    r = estimate(robot, y, T, [PointForceUnknown(0.25, (0, 1, 0))])
+    assert not r.converged and np.isinf(r.sigma[0])
+    assert "measured tendons (a, b) do not change length with unknown 1" in r.extra["note"]

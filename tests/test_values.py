@@ -262,7 +262,7 @@ def test_the_kept_programs_stay_within_the_cache_limit(tmp_path, monkeypatch):
     assert run(4) == 12.0
     left = sorted(f.name.split("-")[0] for f in folder.glob("*.exe"))
     assert left == ["evict1", "evict3", "evict4"], left
-    assert not files[2].with_suffix(".lock").exists()
+    assert files[2].with_suffix(".lock").exists()  # (lock files stay: one may be held)
     monkeypatch.setattr(settings, "cache_limit", 0)
     assert run(2) == 6.0  # compiled again, kept alone
     assert [f.name.split("-")[0] for f in folder.glob("*.exe")] == ["evict2"]

@@ -177,24 +177,36 @@ def _kept(path: Path):
 
 
 def _evict(folder: Path, limit: int, keep: Path | None = None) -> None:
-    """The least recently used executables in ``folder`` (and their lock files) removed until
-    those left take at most ``limit`` bytes; ``keep`` stays (the one just written)."""
+    """The least recently used executables in ``folder`` removed until those left take at most
+    ``limit`` bytes; ``keep`` stays (the one just written). Another process may be loading,
+    writing or evicting at the same time: a file used or written again since it was listed
+    stays, one gone already counts as removed, and lock files are left (a process may hold
+    one)."""
+    kept = []
     try:
-        kept = [(e.stat().st_mtime, e.stat().st_size, Path(e.path)) for e in os.scandir(folder)
-                if e.name.endswith(".exe")]
+        entries = list(os.scandir(folder))
     except OSError:
         return
+    for e in entries:
+        if e.name.endswith(".exe"):
+            with suppress(OSError):  # (removed since it was listed)
+                st = e.stat()
+                kept.append((st.st_mtime, st.st_size, Path(e.path)))
     total = sum(size for _, size, _ in kept)
-    for _, size, path in sorted(kept):
+    for mtime, size, path in sorted(kept):
         if total <= limit:
             break
         if path == keep:
             continue
-        with suppress(OSError):  # (another process may have removed it first)
+        try:
+            if path.stat().st_mtime != mtime:  # used or written again meanwhile
+                continue
             path.unlink()
-            total -= size
-        with suppress(OSError):
-            path.with_suffix(".lock").unlink()
+        except FileNotFoundError:
+            pass
+        except OSError:
+            continue
+        total -= size
 
 
 def _serialize(compiled) -> bytes:

@@ -255,10 +255,12 @@ def _result(prob: Problem, x, drive, values, T, noise, converged, iterations, re
     if converged and (over := prob.overloaded(x, float(values.young_modulus))[0]):
         converged, why = False, over
     sens, sigma, cov, (Jz, JT) = _uncertainty(prob, x, drive, values, T, noise)
-    if not converged and why is None:  # a solver stuck where it started: an unseen load?
-        blind, why = unseen(prob, x, drive, values)
-        sigma[list(blind)] = np.inf
-        why = why or None
+    # a load the measured tendons cannot see: no estimate, whether the solver stuck where it
+    # started or a fit stopped at once (its gradient 0: "converged", σ 0 from the pseudo-inverse)
+    blind, blind_why = unseen(prob, x, drive, values)
+    sigma[list(blind)] = np.inf
+    if blind and (converged or why is None):
+        converged, why = False, blind_why
     z = x[prob.model.nq:]
     if converged and len(prob.measured) > prob.n_z:  # a least-squares fit: is it one?
         y = shape_outputs(prob.model.structure, values, x[:prob.model.nq])[2]

@@ -506,9 +506,9 @@ def check_unknowns(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unk
     if not unknowns:
         raise ValueError("estimation needs at least one unknown load")
     measured = _sequence(measured, "measured tendons", "['t1']")
-    if twice := sorted({n for n in measured if measured.count(n) > 1}):
-        raise ValueError(f"measured tendons: {', '.join(map(str, twice))} listed twice (each "
-                         f"tendon's length is one reading)")
+    if twice := [n for i, n in enumerate(measured) if n in measured[:i]]:
+        raise ValueError(f"measured tendons: {twice[0]} listed twice (each tendon's length is "
+                         f"one reading)")
     for name in measured:
         if name not in robot.tendon_names:
             raise ValueError(f"displacement {name}: no such tendon (robot has "

@@ -197,8 +197,9 @@ class OnlineEstimator:
                                                  values)
         if prob.located:
             self._search_cost = _clock() - t0
-        if not converged:  # (stuck where it started: an unseen load?)
-            why = "" if prob.located else unseen(prob, x, drive, values)[1]
+        if not converged:  # before any sample converged (no time limit yet): an unseen load?
+            why = "" if prob.located or self._x is not None else unseen(prob, x, drive,
+                                                                          values)[1]
             return self._failed(why or note, row)
         drive = self._ref.drive(T, targets)  # (located: at the X found)
         restart = x

@@ -229,11 +229,11 @@ UNSEEN = 1e-9
 
 def unseen(prob: Problem, x, drive, values: Values) -> tuple[tuple[int, ...], str]:
     """The magnitudes whose size the readings cannot tell at ``x`` and why (``()``, '' if
-    none): the strain a
-    change of each makes (``E_q⁻¹ E_z``) is orthogonal, to :data:`UNSEEN`, to every measured
-    length's gradient ``y_q`` — e.g. a force across the plane in which the measured tendons
-    bend the rod, which by symmetry changes their lengths at second order only. Each
-    estimate's Newton matrix is then singular: a solver stops where it started."""
+    none): the strain a change of each makes (``E_q⁻¹ E_z``) is orthogonal, to
+    :data:`UNSEEN`, to every measured length's gradient ``y_q`` — e.g. a force across the
+    plane in which the measured tendons bend the rod, which by symmetry changes their lengths
+    at second order only. Each estimate's Newton matrix is then singular: a solver stops where
+    it started."""
     nq, x = prob.model.nq, np.asarray(x, float)
     Eq, Ez, _, yq = (np.asarray(a) for a in _jacobians_fn(prob.model.structure, prob.measured)(
         x[:nq], x[nq:], drive.tensions, drive, prob.unknowns, values))
@@ -251,12 +251,13 @@ def unseen(prob: Problem, x, drive, values: Values) -> tuple[tuple[int, ...], st
         what.append(f"unknown {k + 1} (the force along ({', '.join(f'{c:g}' for c in F[p[0]])})"
                     f" at X = {prob.load_X[p[0]]:g} m)" if p.size else
                     f"unknown {k + 1} (gravity's scale)")
-    return tuple(blind), (f"the measured tendon{'s' if len(names) > 1 else ''} "
-            f"({', '.join(names)}) do{'es' if len(names) == 1 else ''} not change length with "
-            f"{' or '.join(what)} at the shape reached: the readings cannot tell "
-            f"{'its' if len(blind) == 1 else 'their'} size (is it across the plane the "
-            f"measured tendons bend the rod in? give a direction they see, or measure a tendon "
-            f"it stretches)")
+    why = (f"the measured tendon{'s' if len(names) > 1 else ''} ({', '.join(names)}) "
+           f"do{'es' if len(names) == 1 else ''} not change length with {' or '.join(what)} "
+           f"at the shape reached: the readings cannot tell "
+           f"{'its' if len(blind) == 1 else 'their'} size (is it across the plane the measured "
+           f"tendons bend the rod in? give a direction they see, or measure a tendon it "
+           f"stretches)")
+    return tuple(blind), why
 
 
 def band(dz_dm: np.ndarray, n_lengths: int, tensions: np.ndarray, noise: Noise) -> np.ndarray:
@@ -307,18 +308,21 @@ def misfit_note(Jz, JT, misfit, tensions, noise: Noise) -> str:
     estimate leaves is more than the sensor noise explains, or '': its χ² against the
     covariance the noise gives that misfit (``Jz``, ``JT``: the measured lengths'
     sensitivities to the magnitudes and to the ``tensions``, the length noise and the relative
-    tension noise through ``JT``, projected off what the magnitudes absorb), over
-    ``m − n_z`` degrees of freedom."""
+    tension noise through ``JT``, on the left null space of ``Jz``: what the magnitudes
+    cannot absorb), over as many degrees of freedom as that space has."""
     from scipy.special import chdtri
     Jz, JT, e = (np.asarray(a, float) for a in (Jz, JT, misfit))
-    m, n_z = Jz.shape
-    if m <= n_z:
+    # the misfit's part the magnitudes cannot absorb: on N, the left null space of Jz
+    U, s, _ = np.linalg.svd(Jz)
+    rank = int(np.sum(s > 1e-10 * s.max())) if s.size and s.max() > 0 else 0
+    N = U[:, rank:]
+    dof = N.shape[1]
+    if dof < 1:
         return ""
-    P = np.eye(m) - Jz @ np.linalg.pinv(Jz)
-    C = noise.length**2 * np.eye(m) + (JT * (noise.tension * np.asarray(tensions, float))**2
-                                       ) @ JT.T
-    chi2 = float(e @ np.linalg.pinv(P @ C @ P, hermitian=True) @ e)
-    dof = m - n_z
+    C = noise.length**2 * np.eye(len(e)) + (JT * (noise.tension * np.asarray(
+        tensions, float))**2) @ JT.T
+    r = N.T @ e
+    chi2 = float(r @ np.linalg.solve(N.T @ C @ N, r))
     if not chi2 > chdtri(dof, 1 - MISFIT_QUANTILE):
         return ""
     rms = float(np.sqrt(np.mean(e**2)))

@@ -120,7 +120,8 @@ class SampleEstimate:
 
     def __post_init__(self):
         if not self.converged:  # (a list of them reads as numbers no more)
-            for name in ("magnitudes", "sigma", "locations", "location_sigma"):
+            for name in ("magnitudes", "sigma", "locations", "location_sigma",
+                         "magnitude_range"):
                 object.__setattr__(self, name, np.full(np.shape(getattr(self, name)), np.nan))
 
     @staticmethod
