@@ -263,9 +263,15 @@ def test_the_kept_programs_stay_within_the_cache_limit(tmp_path, monkeypatch):
     left = sorted(f.name.split("-")[0] for f in folder.glob("*.exe"))
     assert left == ["evict1", "evict3", "evict4"], left
     assert files[2].with_suffix(".lock").exists()  # (lock files stay: one may be held)
-    monkeypatch.setattr(settings, "cache_limit", 0)
+    monkeypatch.setattr(settings, "cache_limit", None)  # the environment's, in MB
+    monkeypatch.setenv("TENDONSENSE_CACHE_LIMIT", "0")
+    assert settings.cache_limit_bytes() == 0
     assert run(2) == 6.0  # compiled again, kept alone
     assert [f.name.split("-")[0] for f in folder.glob("*.exe")] == ["evict2"]
+    monkeypatch.setenv("TENDONSENSE_CACHE_LIMIT", "500")
+    assert settings.cache_limit_bytes() == 500_000_000
+    monkeypatch.setenv("TENDONSENSE_CACHE_LIMIT", "2G")  # not megabytes: said, default kept
+    assert settings.cache_limit_bytes() == settings.CACHE_LIMIT
 
 
 def test_programs_compile_unpinned(monkeypatch):

@@ -6,8 +6,8 @@ argument signature, the machine (platform and CPU), XLA's flags and a hash of th
 source (the compiler options of :func:`~tendonsense.settings.compiler_options` included) and
 of the JAX version, so that an edited model never runs a stale program; a process that needs
 a program another is compiling waits for it. The kept programs take at most
-:data:`settings.cache_limit <tendonsense.settings.cache_limit>` bytes: the least recently
-used go first. Without a cache directory, or if an executable
+:func:`settings.cache_limit_bytes <tendonsense.settings.cache_limit_bytes>` bytes: the
+least recently used go first. Without a cache directory, or if an executable
 cannot be kept, it is compiled in this process alone, with the same options.
 """
 
@@ -116,7 +116,7 @@ class Program:
             except Exception:  # an executable that cannot be kept still runs
                 pass
             else:
-                _evict(path.parent, settings.cache_limit, keep=path)
+                _evict(path.parent, settings.cache_limit_bytes(), keep=path)
         return compiled
 
 

@@ -31,7 +31,7 @@ from .inputs import (WALK, Noise, Unknown, check_noise, check_point_forces, chec
 from .readings import LogSummary, log_outputs
 from .result import SampleEstimate
 from .robot import Robot
-from .settings import cache_dir, pin
+from .settings import cache_dir, cache_limit_bytes, pin
 
 if TYPE_CHECKING:
     from .tracking import BatchResult  # noqa: F401 (annotations)
@@ -103,7 +103,8 @@ def cluster(workers: int = 2, scheduler: str | None = None,
             local = distributed.LocalCluster(
                 n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                 scheduler_kwargs={"dashboard_address": ":0"}, memory_limit=0,
-                env={"TENDONSENSE_CACHE_DIR": "" if folder is None else str(folder)})
+                env={"TENDONSENSE_CACHE_DIR": "" if folder is None else str(folder),
+                     "TENDONSENSE_CACHE_LIMIT": str(cache_limit_bytes() / 1e6)})
     except (RuntimeError, OSError) as exc:
         raise OSError(f"a local Dask cluster of {workers} workers did not start ({exc})") from None
     try:

@@ -20,11 +20,43 @@ def cache_dir() -> Path | None:
     return Path(path) if path else None
 
 
-#: the most the kept programs (``cache_dir()/programs``) may take, in bytes: when a new one
-#: would take them over it, the least recently used go (programs of other versions of this
-#: package or of robots not run for a while; a program loaded again counts as used). A robot's
-#: programs take some 10-40 MB.
-cache_limit: int = 2 * 1024**3
+#: the most the kept programs (``cache_dir()/programs``) may take by default, in bytes
+CACHE_LIMIT = 2 * 1024**3
+
+#: the most the kept programs may take, in bytes, in this process (None: the default of
+#: :func:`cache_limit_bytes`): when a new one would take them over it, the least recently used go (programs of
+#: other versions of this package or of robots not run for a while; a program loaded again
+#: counts as used). A robot's programs take some 10-40 MB.
+cache_limit: int | None = None
+
+
+def cache_limit_bytes() -> int:
+    """:data:`cache_limit` if set, else ``TENDONSENSE_CACHE_LIMIT`` (megabytes, e.g. ``500``;
+    a local cluster's workers take it too), else :data:`CACHE_LIMIT`; a value that is not a
+    number of megabytes is said on standard error once and the default kept."""
+    if cache_limit is not None:
+        return int(cache_limit)
+    raw = os.environ.get("TENDONSENSE_CACHE_LIMIT", "").strip()
+    if not raw:
+        return CACHE_LIMIT
+    try:
+        mb = float(raw)
+    except ValueError:
+        mb = -1.0
+    if 0 <= mb < float("inf"):
+        return int(mb * 1e6)
+    _say_once(f"tendonsense: TENDONSENSE_CACHE_LIMIT={raw!r} is not a number of megabytes: "
+              f"programs are kept within {CACHE_LIMIT / 1024**3:g} GiB")
+    return CACHE_LIMIT
+
+
+_SAID: set[str] = set()
+
+
+def _say_once(message: str) -> None:
+    if message not in _SAID:
+        _SAID.add(message)
+        print(message, file=sys.stderr)
 
 #: called once, with a message, when this process first compiles a program where no kept
 #: one could be loaded (:mod:`tendonsense.compiled`): the command line prints it on a terminal,

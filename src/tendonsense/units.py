@@ -13,7 +13,10 @@ def newtons(value: float, sigma: float | None = None) -> str:
 
 
 def spread(sigma: float) -> str:
-    """A force's 1-σ band, e.g. ``± 0.0027 N (0.3 gF)``."""
+    """A force's 1-σ band, e.g. ``± 0.0027 N (0.3 gF)``; unbounded, ``± ∞`` (readings
+    that cannot tell the force's size)."""
+    if not math.isfinite(sigma):
+        return "± ∞"
     return f"± {sigma:.2g} N ({_grams(sigma)} gF)"
 
 
