@@ -24,7 +24,8 @@ from .inputs import (GravityUnknown, Noise, PointForceUnknown, Unknown,  # noqa:
                      check_noise)
 from .model import Values
 from .problem import (Problem, _jacobians_fn, confounded, noise_covariance,  # noqa: F401
-                      misfit_note, problem, reduced_jacobians, unseen, unstable_at)
+                      jacobians, misfit_note, problem, reduced_jacobians, unseen,
+                      unstable_at)
 from .result import Result, joined
 from .robot import Robot, check_robot
 from .sliding import band_note, band_range
@@ -254,10 +255,11 @@ def _result(prob: Problem, x, drive, values, T, noise, converged, iterations, re
     n = prob.n_magnitudes
     if converged and (over := prob.overloaded(x, float(values.young_modulus))[0]):
         converged, why = False, over
-    sens, sigma, cov, (Jz, JT) = _uncertainty(prob, x, drive, values, T, noise)
+    parts = jacobians(prob, x, drive, values)  # one call for σ and both checks
+    sens, sigma, cov, (Jz, JT) = _uncertainty(prob, x, drive, values, T, noise, parts)
     # a load the measured tendons cannot see: no estimate, whether the solver stuck where it
     # started or a fit stopped at once (its gradient 0: "converged", σ 0 from the pseudo-inverse)
-    blind, blind_why = unseen(prob, x, drive, values)
+    blind, blind_why = unseen(prob, x, drive, values, parts)
     sigma[list(blind)] = np.inf
     if blind and (converged or why is None):
         converged, why = False, blind_why
@@ -269,7 +271,7 @@ def _result(prob: Problem, x, drive, values, T, noise, converged, iterations, re
             Jz, JT[:, columns], y[list(prob.measured)] - np.asarray(drive.targets),
             np.asarray(T, float)[columns], noise))
     note = joined(extra.pop("note", ""), converged and confounded(cov, n),
-                  converged and unstable_at(prob, x, drive, values))
+                  converged and unstable_at(prob, x, drive, values, parts))
     return make_result(prob.model, x, T, NewtonResult(x, converged, iterations, res.residual, 0),
                        why=why,
                        magnitudes=z[:n], sigma=sigma[:n],
@@ -382,12 +384,12 @@ def _located(prob: Problem, x, sigma) -> dict:
     return out
 
 
-def _uncertainty(prob: Problem, x, drive, values, T, noise: Noise):
+def _uncertainty(prob: Problem, x, drive, values, T, noise: Noise, parts=None):
     """First-order sensitivity of the magnitudes to every measurement, the 1-σ band and the
     covariance: ``dz/dm = −(∂e/∂z)⁺ ∂e/∂m`` with ``e = y(q(z, T)) − y_meas`` (exact for
     square problems, Gauss–Newton for least squares)."""
     names = prob.robot.tendon_names
-    Jz, JT = reduced_jacobians(prob, x, drive, values)
+    Jz, JT = reduced_jacobians(prob, x, drive, values, parts)
     pinv = np.linalg.pinv(Jz)
     dz_dT = -pinv @ JT  # ∂e/∂y_meas = −I: dz/dy_meas = pinv
     columns = [j for j in range(len(names)) if T[j] != 0 or j in prob.measured]

@@ -203,23 +203,26 @@ def _jacobians_fn(structure: Structure, measured: tuple[int, ...]):
     return Program(jac, "jacobians", (structure, measured))
 
 
-def reduced_jacobians(prob: Problem, x, drive, values: Values):
-    """Reduced Jacobians of the measured lengths w.r.t. the magnitudes and the tensions, with
-    the equilibrium eliminated: ``dy/dz = −y_q E_q⁻¹ E_z``, ``dy/dT = −y_q E_q⁻¹ E_T``."""
+def jacobians(prob: Problem, x, drive, values: Values) -> tuple[np.ndarray, ...]:
+    """``(∂E/∂q, ∂E/∂z, ∂E/∂T, ∂y_meas/∂q)`` at ``x`` (one call of the compiled program)."""
     nq, x = prob.model.nq, np.asarray(x, float)
-    Eq, Ez, ET, yq = (np.asarray(a) for a in _jacobians_fn(prob.model.structure, prob.measured)(
+    return tuple(np.asarray(a) for a in _jacobians_fn(prob.model.structure, prob.measured)(
         x[:nq], x[nq:], drive.tensions, drive, prob.unknowns, values))
+
+
+def reduced_jacobians(prob: Problem, x, drive, values: Values, parts=None):
+    """Reduced Jacobians of the measured lengths w.r.t. the magnitudes and the tensions, with
+    the equilibrium eliminated: ``dy/dz = −y_q E_q⁻¹ E_z``, ``dy/dT = −y_q E_q⁻¹ E_T``
+    (``parts``: :func:`jacobians` at ``x`` if known)."""
+    Eq, Ez, ET, yq = jacobians(prob, x, drive, values) if parts is None else parts
     sol = np.linalg.solve(Eq, np.concatenate([Ez, ET], axis=1))
     return -yq @ sol[:, :prob.n_z], -yq @ sol[:, prob.n_z:]
 
 
-def unstable_at(prob: Problem, x, drive, values: Values) -> str:
+def unstable_at(prob: Problem, x, drive, values: Values, parts=None) -> str:
     """:func:`~tendonsense.statics.unstable` for the solution ``x`` of ``prob`` (its
-    magnitudes held, as dead loads), from the Jacobians the 1-σ band uses."""
-    nq, x = prob.model.nq, np.asarray(x, float)
-    Eq = _jacobians_fn(prob.model.structure, prob.measured)(
-        x[:nq], x[nq:], drive.tensions, drive, prob.unknowns, values)[0]
-    return unstable(values, Eq)
+    magnitudes held, as dead loads), from the Jacobians the 1-σ band uses (``parts``)."""
+    return unstable(values, (jacobians(prob, x, drive, values) if parts is None else parts)[0])
 
 
 #: a magnitude whose strain the measured lengths' gradients span less than this fraction of
@@ -227,16 +230,15 @@ def unstable_at(prob: Problem, x, drive, values: Values) -> str:
 UNSEEN = 1e-9
 
 
-def unseen(prob: Problem, x, drive, values: Values) -> tuple[tuple[int, ...], str]:
+def unseen(prob: Problem, x, drive, values: Values, parts=None
+           ) -> tuple[tuple[int, ...], str]:
     """The magnitudes whose size the readings cannot tell at ``x`` and why (``()``, '' if
     none): the strain a change of each makes (``E_q⁻¹ E_z``) is orthogonal, to
     :data:`UNSEEN`, to every measured length's gradient ``y_q`` — e.g. a force across the
     plane in which the measured tendons bend the rod, which by symmetry changes their lengths
     at second order only. Each estimate's Newton matrix is then singular: a solver stops where
-    it started."""
-    nq, x = prob.model.nq, np.asarray(x, float)
-    Eq, Ez, _, yq = (np.asarray(a) for a in _jacobians_fn(prob.model.structure, prob.measured)(
-        x[:nq], x[nq:], drive.tensions, drive, prob.unknowns, values))
+    it started. ``parts``: :func:`jacobians` at ``x`` if known."""
+    Eq, Ez, _, yq = jacobians(prob, x, drive, values) if parts is None else parts
     with np.errstate(all="ignore"):
         d = np.linalg.solve(Eq, Ez[:, :prob.n_magnitudes])
         seen = np.linalg.norm(np.linalg.qr(yq.T)[0].T @ d, axis=0) / np.linalg.norm(d, axis=0)
