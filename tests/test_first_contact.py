@@ -466,10 +466,15 @@ def test_a_header_only_log_is_an_error(tmp_path):
     (("solve", PROTOTYPE, "--tension", "t1=2", "--plot", "a.png", "--plot", "b.png"), 2,
      "--plot given twice"),
     (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--tension", "t1=2", "--unknown",
-      "0.25,0,0,-1", "--length-noise", "-1e-4"), 2,
+      "0.25,0,0,-1", "--length-noise", "-1e-4"), 1,
      "--length-noise: must be a positive number, got '-1e-4'"),  # not taken for an option
     (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--tension", "t1=2", "--unknown",
-      "0.25,0,0,-1", "--tension-noise", "2.5"), 2, "must be a fraction under 1"),  # per cent
+      "0.25,0,0,-1", "--tension-noise", "2.5"), 1, "must be a fraction under 1"),  # per cent
+    # a value its option's type refuses is a bad value (1), as one refused later is (it was 2)
+    (("solve", PROTOTYPE, "--tension", "t1=2,0"), 1, "--tension: t1: not a number: '2,0'"),
+    (("sensitivity", "--points", "nine"), 1, "--points: invalid int value: 'nine'"),
+    (("solve", PROTOTYPE, "--tension", "t1=2", "--tensoin", "t2=1"), 2,
+     "unrecognized arguments: --tensoin t2=1"),
     (("solve", PROTOTYPE, "--tension", "t1=204"), 1, "tensions are in newtons"),  # gF
     (("simulate", PROTOTYPE, "--tension", "t1=2", "--duration", "1", "--noise-tension", "1.5",
       "-o", "s.csv"), 1, "--noise-tension 1.5: relative, must be a fraction under 1"),
@@ -1359,6 +1364,45 @@ def test_an_overdetermined_estimate_that_misses_its_readings_says_so(prototype):
             ({"t1": y["t2"], "t2": y["t1"], "t3": y["t3"]}, True)):
         r = estimate(prototype, lengths, T, [TIP])
         assert r.converged and (words in r.extra.get("note", "")) == flagged, r.extra
+
+
+def test_an_overdetermined_log_that_misses_its_readings_says_so(prototype, tmp_path):
+    """The same test on every row of a three-tendon log (file, CLI and stream): t1's and t2's
+    length columns swapped, the rows say so and the CLI counts them (the log's rows had no
+    word); the true log, with its length noise, has none."""
+    import io
+    from tendonsense.logs import estimate_file, stream_readings
+    n = 12
+    T1 = np.linspace(1.5, 3.0, n)  # pulled in only: the friction the log's history says
+    F = np.stack([0 * T1, 0 * T1, -np.linspace(0.05, 0.15, n)], axis=1)
+    out = solve_batch(prototype, {"t1": T1, "t2": 0.3 + 0 * T1, "t3": 0.3 + 0 * T1},
+                      [(0.25, F)])
+    rng = np.random.default_rng(3)
+    y = {t: out.displacements[t] + rng.normal(0, 1e-4, n) for t in ("t1", "t2", "t3")}
+    words = "the readings disagree beyond their noise"
+    for swapped in (False, True):
+        a, b = ("t2", "t1") if swapped else ("t1", "t2")
+        log = tmp_path / f"log_{swapped}.csv"
+        log.write_text("tension_t1,tension_t2,tension_t3,displacement_t1,displacement_t2,"
+                       "displacement_t3\n" + "".join(
+                           f"{T1[k]},0.3,0.3,{y[a][k]},{y[b][k]},{y['t3'][k]}\n"
+                           for k in range(n)))
+        summary = estimate_file(prototype, log, tmp_path / "out.csv", [TIP])
+        notes = [r["note"] for r in csv.DictReader(open(tmp_path / "out.csv"))]
+        flagged = sum(words in note for note in notes)
+        assert summary.converged == n
+        # (swapped: 10 of 12, the two near 2.2 N explained by another force within the noise)
+        assert flagged >= n - 3 if swapped else flagged == 0, notes
+        assert (f"{flagged} of {n} rows: {words}" in summary.note) == swapped, summary.note
+        streamed = io.StringIO()
+        stream_readings(prototype, io.StringIO(log.read_text()), streamed, [TIP])
+        notes = [r["note"] for r in csv.DictReader(io.StringIO(streamed.getvalue()))]
+        assert sum(words in note for note in notes) == flagged, notes
+        if swapped:
+            p = cli("estimate", PROTOTYPE, "--readings", log, "--unknown", "0.25,0,0,-1",
+                    "-o", tmp_path / "cli.csv")
+            assert p.returncode == 0 and f"{log}: note: {flagged} of {n} rows: {words}" \
+                in p.stderr, p.stderr
 
 
 @pytest.mark.parametrize("edit, words", [

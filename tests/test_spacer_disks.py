@@ -55,6 +55,10 @@ def test_the_peer_robot_file_and_its_checks(peer, tmp_path):
     (tmp_path / "thin.toml").write_text(text.replace("disk_radius = 0.016", "disk_radius = 0.0005"))
     with pytest.raises(RobotFileError, match="rod.disk_radius: spacer disks"):
         load_robot(tmp_path / "thin.toml")
+    (tmp_path / "mm.toml").write_text(text.replace("disk_radius = 0.016", "disk_radius = 16"))
+    with pytest.raises(RobotFileError, match=r"rod.disk_radius: 16 m is more than half the rod's "
+                                             r"length .*lengths are in metres"):
+        load_robot(tmp_path / "mm.toml")  # mm typed (was accepted: disks 16 m wide)
     (tmp_path / "bad.toml").write_text(text.replace('disks = "continuous"', 'disks = "spiral"', 1))
     with pytest.raises(RobotFileError, match='disks: must be a count, a list of X or "continuous"'):
         load_robot(tmp_path / "bad.toml")

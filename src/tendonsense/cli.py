@@ -76,9 +76,28 @@ class _Once(argparse._StoreAction):
         super().__call__(parser, namespace, values, option_string)
 
 
+class BadValue(ValueError):
+    """An option's value that its type or choices refuse: bad input (exit status 1), as a bad
+    value found after parsing is, where a malformed command line is bad usage (2)."""
+
+
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, no usage dump
         raise UsageError(f"{self.prog}: {message}")
+
+    def _get_value(self, action, arg_string):
+        try:
+            return super()._get_value(action, arg_string)
+        except argparse.ArgumentError as exc:
+            raise BadValue(f"{self.prog}: {exc}") from None
+
+    def _check_value(self, action, value):
+        if isinstance(action, argparse._SubParsersAction):  # a command mistyped: usage
+            return super()._check_value(action, value)
+        try:
+            super()._check_value(action, value)
+        except argparse.ArgumentError as exc:
+            raise BadValue(f"{self.prog}: {exc}") from None
 
     def parse_args(self, args=None, namespace=None):
         """As argparse's, an unrecognized argument named with the command it was given to."""
@@ -608,7 +627,7 @@ def _check(args, robot) -> None:
                 raise UsageError("tendonsense sweep: --task-size goes with --workers or "
                                  "--scheduler (here every set is solved by one batch)")
             if args.task_size < 1:
-                raise UsageError(f"tendonsense sweep: --task-size {args.task_size}: at least 1")
+                raise ValueError(f"tendonsense sweep: --task-size {args.task_size}: at least 1")
         forces = _point_forces(args)
         inputs.check_point_forces(robot, forces, math.inf)  # bounded below by each set's E
         _writable(args.results, "-o/--results")
@@ -625,7 +644,7 @@ def _check(args, robot) -> None:
     if cmd in ("sensitivity", "resolution", "compare"):
         _check_analysis(args, robot)
     if (cmd == "view" or getattr(args, "view", False)) and not 0 < args.port < 65536:
-        raise UsageError(f"tendonsense {cmd}: --port {args.port}: not a port number")
+        raise ValueError(f"tendonsense {cmd}: --port {args.port}: not a port number")
     for name, flag in (("length_noise", "--length-noise"), ("noise_length", "--noise-length")):
         if getattr(args, name, None) and (
                 error := inputs.length_noise_error(robot, flag, getattr(args, name))):
@@ -1266,7 +1285,7 @@ def _log(args, robot) -> bool:
             pin({args.cpu})
         return _stream(args, robot, noise)
     from . import readings as rd
-    from .logs import estimate_chunks
+    from .logs import estimate_chunks, misfit_rows
     measured, samples = args.log
     forces, unknowns = _point_forces(args), args.unknown
     where = rd.located(unknowns)
@@ -1276,6 +1295,7 @@ def _log(args, robot) -> bool:
     out = rd.AtomicText(args.estimates) if to_file else sys.stdout
     prog = _Progress(args, "estimate")
     good = shown = 0
+    done: list = []
     try:
         writer = csv.writer(out, lineterminator="\n")
         writer.writerow(rd.output_header(robot, len(unknowns), with_shape, where, follow))
@@ -1288,6 +1308,7 @@ def _log(args, robot) -> bool:
                 writer.writerow(rd.output_row(robot, s, r, len(unknowns), with_shape, where,
                                               follow))
                 good += r.converged
+            done += estimates
             out.flush()
             prog(first + len(estimates), len(samples))
         if to_file:
@@ -1301,6 +1322,8 @@ def _log(args, robot) -> bool:
             out.close()
     skipped = sum(bool(s.error) for s in samples)
     _more_skipped(args.readings, skipped - shown)
+    if note := misfit_rows(done):
+        print(f"tendonsense: {args.readings}: note: {note}", file=sys.stderr)
     if to_file:
         summary = {"samples": len(samples), "converged": good, "skipped": skipped,
                    "output": str(args.estimates)}

@@ -43,6 +43,11 @@ class Track(NamedTuple):
     markers: jax.Array  # (N, n_markers, 3)
     lengths: jax.Array  # (N, n_t) tendon length changes, eq. 9
     admissible: jax.Array  # (N,) strain within the model's range (:func:`admissible`)
+    # least squares: the measured lengths' sensitivities to the unknowns (N, n_meas, n_z) and
+    # to the tensions of the sensitivity's columns (N, n_meas, n_T), the equilibrium
+    # eliminated (m per unit, m/N; for the misfit's test), zeros for a square system
+    Jz: jax.Array
+    JT: jax.Array
 
 
 class Carry(NamedTuple):
@@ -180,9 +185,9 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
                                                jnp.arange(sel.size)].set(-sc.root_k)
         Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)
         return finish(carry, d, values, x, ok, fine, st["H"], -st["H"] @ Rm, st["evals"],
-                      st["jacs"])
+                      st["jacs"], jnp.zeros((sel.size, n_z)), jnp.zeros((sel.size, tcols.size)))
 
-    def finish(carry, d, values, x, ok, fine, H, dx_dm, evals, jacs):
+    def finish(carry, d, values, x, ok, fine, H, dx_dm, evals, jacs, Jz, JT):
         grid, g = poses(values, x[:nq], points_at(structure, values, values.marker_X))
         markers = positions(g, values.marker_offsets)
         y = tendons.length_changes(structure, values, grid, x[:nq])
@@ -190,7 +195,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         new = Carry(x, H, dx_dm, measurements(d), ok, carry.count + 1, carry.scaling)
         keep = carry._replace(count=carry.count + 1)
         out = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, keep)
-        return out, Track(x, ok, evals, jacs, dx_dm, markers, y, fine)
+        return out, Track(x, ok, evals, jacs, dx_dm, markers, y, fine, Jz, JT)
 
     def linear(x, d, unknowns, vs):  # (J, r, load size, ∂r/∂T), one residual evaluation
         def with_aux(x):
@@ -199,17 +204,20 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         J, (r, s, rT) = jax.jacfwd(with_aux, has_aux=True)(x)
         return J, r, s, rT
 
-    def gauss_newton(J, r):
-        """eq. 17 linearised: ``dx`` of min ‖r_y + C dx‖² subject to r_E + A dx = 0 (J = [A; C],
-        r = [r_E; r_y], either (n,) or with columns), the constraint eliminated through
-        A = [A_q A_z]: dx_q = −A_q⁻¹(r_E + A_z dz), and dz by least squares on the rest."""
+    def eliminated(J, r):
+        """The constraint r_E + A dx = 0 of :func:`gauss_newton` eliminated through
+        A = [A_q A_z]: ``(a, M, G, h)`` with dx_q = a + M dz and the rest r_y + C dx = h + G dz
+        (``r`` (n, k))."""
         A_q, A_z, C_q, C_z = J[:nq, :nq], J[:nq, nq:], J[nq:, :nq], J[nq:, nq:]
-        rE, ry = r[:nq], r[nq:]
-        cols = rE.reshape(nq, -1)
-        sol = linalg.solve(A_q, jnp.concatenate([cols, A_z], axis=1))
-        a, M = -sol[:, :cols.shape[1]], -sol[:, cols.shape[1]:]
-        G = C_q @ M + C_z
-        h = ry.reshape(ry.shape[0], -1) + C_q @ a
+        sol = linalg.solve(A_q, jnp.concatenate([r[:nq], A_z], axis=1))
+        a, M = -sol[:, :r.shape[1]], -sol[:, r.shape[1]:]
+        return a, M, C_q @ M + C_z, r[nq:] + C_q @ a
+
+    def gauss_newton(J, r, parts=None):
+        """eq. 17 linearised: ``dx`` of min ‖r_y + C dx‖² subject to r_E + A dx = 0 (J = [A; C],
+        r = [r_E; r_y], either (n,) or with columns), the constraint eliminated
+        (:func:`eliminated`, or its ``parts`` if known), and dz by least squares on the rest."""
+        a, M, G, h = eliminated(J, r.reshape(r.shape[0], -1)) if parts is None else parts
         dz = -linalg.solve(G.T @ G, G.T @ h)
         return jnp.concatenate([a + M @ dz, dz]).reshape((nq + n_z, *r.shape[1:]))
 
@@ -288,8 +296,13 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         Ry = jnp.zeros((x.size - n_z + sel.size, sel.size)).at[
             nq + jnp.arange(sel.size), jnp.arange(sel.size)].set(-vs[1].root_k)
         Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)
-        dx_dm = gauss_newton(st["J"], Rm)
-        return finish(carry, d, values, x, ok, fine, carry.H, dx_dm, st["evals"], st["jacs"])
+        parts = eliminated(st["J"], Rm)
+        dx_dm = gauss_newton(st["J"], Rm, parts)
+        # the lengths' rows are √k-scaled: G = √k dy/dz, h = √k dy/dT (the tensions' columns)
+        G, h = parts[2:]
+        root_k = vs[1].root_k[:, None]
+        return finish(carry, d, values, x, ok, fine, carry.H, dx_dm, st["evals"], st["jacs"],
+                      G / root_k, h[:, sel.size:] / root_k)
 
     if len(measured) > n_z:
         return init_ls, step_ls
@@ -530,6 +543,9 @@ class LiveRow(NamedTuple):
     covariance: np.ndarray  # (n_z, n_z) of z, whose diagonal's root is ``sigma``
     state: np.ndarray  # (n_t, turns) the friction state it was solved with, at every turn
     code: np.ndarray  # (n_t,) each tendon's direction: +1 in, −1 out, 0 stuck
+    lengths: np.ndarray  # (n_t,) tendon length changes, eq. 9
+    Jz: np.ndarray  # (n_meas, n_z) least squares: :class:`Track`'s (zeros if square)
+    JT: np.ndarray  # (n_meas, n_T)
     z: np.ndarray  # (2**n_t, n_z) the unknowns at each end of the band (NaN: none)
 
 
@@ -564,7 +580,8 @@ class Live:
         self.turns = turns
         n_x = nq + n_z
         self.sizes = (n_t, n_m, n_t, n_t, 1, 1, 1, n_x)
-        self.n_x, self.n_t, self.nq = n_x, n_t, nq
+        self.n_x, self.n_t, self.nq, self.n_m = n_x, n_t, nq, n_m
+        self.n_T = len(tension_columns)
         slots = 2 ** min(n_t, ENDS_KEPT) if follows else 1
         tcols = np.array(tension_columns, int)
 
@@ -606,7 +623,7 @@ class Live:
             return ravel_pytree((out.carry, out.band, out.ends))[0], jnp.concatenate(
                 [jnp.ravel(a).astype(float) for a in (
                     row.x, row.converged, row.iterations, row.admissible, row.markers, cov,
-                    out.state, out.code, out.z)])
+                    out.state, out.code, row.lengths, row.Jz, row.JT, out.z)])
 
         def put(state, x0, reading, loads, unknowns, values, slot):
             d = parts(reading, loads)[0]
@@ -633,16 +650,17 @@ class Live:
 
     def unpack(self, flat: np.ndarray, n_markers: int) -> LiveRow:
         """:meth:`sample`'s packed vector (numpy), in the order it is packed."""
-        n_x, n_t, n_z = self.n_x, self.n_t, self.n_x - self.nq
-        ends = np.cumsum((n_x, 1, 1, 1, 3 * n_markers, n_z * n_z, n_t * self.turns, n_t)
-                         ).tolist()
-        x, conv, its, fine, markers, cov, state, code = (
+        n_x, n_t, n_z, n_m = self.n_x, self.n_t, self.n_x - self.nq, self.n_m
+        ends = np.cumsum((n_x, 1, 1, 1, 3 * n_markers, n_z * n_z, n_t * self.turns, n_t, n_t,
+                          n_m * n_z, n_m * self.n_T)).tolist()
+        x, conv, its, fine, markers, cov, state, code, lengths, Jz, JT = (
             flat[a:b] for a, b in zip([0] + ends, ends))
         cov = cov.reshape(n_z, n_z)
         with np.errstate(invalid="ignore"):  # a failed sample's may not be finite
             sigma = np.sqrt(np.diag(cov))
         return LiveRow(x, bool(conv[0]), int(its[0]), bool(fine[0]), markers.reshape(-1, 3),
-                       sigma, cov, state.reshape(n_t, self.turns), code,
+                       sigma, cov, state.reshape(n_t, self.turns), code, lengths,
+                       Jz.reshape(n_m, n_z), JT.reshape(n_m, self.n_T),
                        flat[ends[-1]:].reshape(2 ** n_t, n_z))
 
 

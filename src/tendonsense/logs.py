@@ -19,6 +19,7 @@ import numpy as np
 from .estimation import Noise, Unknown, problem
 from .inputs import WALK, check_unknowns
 from .online import OnlineEstimator
+from .problem import MISFIT
 from .readings import (SKIPPED_SHOWN, LogSummary, ReadingsError, Sample, check_units,
                        has_time, located, motion_step_error, output_header, output_row,
                        output_rows, parse_header, parse_row, read_readings,
@@ -167,6 +168,15 @@ def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
     return out
 
 
+def misfit_rows(estimates: Sequence[SampleEstimate]) -> str:
+    """A log's note counting its rows whose readings disagree beyond their noise
+    (:func:`~tendonsense.problem.misfit_notes`), or ''."""
+    n = sum(MISFIT in e.note for e in estimates)
+    return (f"{n} of {len(estimates)} rows: {MISFIT} (their note column says by how "
+            f"much; is a tendon swapped or mislabelled, a force's X or direction wrong, a load "
+            f"not given?)") if n else ""
+
+
 def _skipped(prob, s: Sample) -> SampleEstimate:
     """The estimate of a sample the reader skipped."""
     return SampleEstimate.failed(prob, f"skipped: {s.error}")
@@ -223,8 +233,8 @@ def estimate_file(robot: Robot, log: str | Path, out: str | Path, unknowns: Sequ
     return LogSummary(str(log), str(out), len(samples),
                       sum(r.converged for r in results), len(bad),
                       skipped_rows=tuple(bad[:SKIPPED_SHOWN]),
-                      note="" if located(unknowns) else released_at_start(samples, robot,
-                                                                           noise.tension))
+                      note=joined("" if located(unknowns) else released_at_start(
+                          samples, robot, noise.tension), misfit_rows(results)))
 
 
 def online_estimator(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],

@@ -17,7 +17,7 @@ from .fastpath import live
 from .filtering import MotionFilter
 from .forward import INADMISSIBLE
 from .inputs import WALK, Noise, check_noise, check_stuck, sliding as check_sliding
-from .problem import Problem, confounded, unseen
+from .problem import Problem, confounded, misfit_note, unseen
 from .result import SampleEstimate, joined
 from .sliding import DIRECTION, GIVEN, band_note, band_range
 from .statics import solve_system
@@ -232,10 +232,13 @@ class OnlineEstimator:
         self._state, self._x, self._failures = state, x, 0
         nq, n = prob.model.nq, prob.n_magnitudes
         over = self._ref.overloaded(x)[0]
+        meas = list(prob.measured)
+        misfit = "" if len(meas) == prob.n_z else misfit_note(
+            row.Jz, row.JT, row.lengths[meas] - targets, T, self.noise)
         est = SampleEstimate(x[nq:nq + n], row.sigma[:n],
                              dict(zip(prob.robot.marker_names, row.markers)), not over,
-                             row.iterations, x, over or confounded(row.covariance, n),
-                             self._ref.locations(x), row.sigma[n:])
+                             row.iterations, x, over or joined(misfit, confounded(
+                                 row.covariance, n)), self._ref.locations(x), row.sigma[n:])
         if not self._follows:
             return est, row
         est = replace(est, friction_state=row.state[:, -1],

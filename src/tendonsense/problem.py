@@ -303,35 +303,51 @@ def _scaled(xp, dz_dm, n_lengths, tensions, length, tension):
 #: a least-squares estimate's length misfit whose χ² is above this quantile of its
 #: distribution under the sensor noise alone is more than that noise explains
 MISFIT_QUANTILE = 0.999
+#: the words that open a misfit's note (:func:`misfit_notes`)
+MISFIT = "the readings disagree beyond their noise"
+
+
+def misfit_notes(Jz, JT, misfit, tensions, noise: Noise) -> list[str]:
+    """For least-squares estimates (leading axis: the estimate), a note where the length misfit
+    ``misfit`` (N, n_m; m, per measured tendon) is more than the sensor noise explains, or '':
+    its χ² against the covariance the noise gives that misfit (``Jz`` (N, n_m, n_z), ``JT``
+    (N, n_m, n_T): the measured lengths' sensitivities to the magnitudes and to the
+    ``tensions`` (N, n_T), the length noise and the relative tension noise through ``JT``,
+    on the left null space of ``Jz``: what the magnitudes cannot absorb), over as many
+    degrees of freedom as that space has, above its :data:`MISFIT_QUANTILE` quantile."""
+    from scipy.special import chdtri
+    Jz, JT, e, T = (np.asarray(a, float) for a in (Jz, JT, misfit, tensions))
+    m = e.shape[-1]
+    # the misfit's part the magnitudes cannot absorb: on the columns of U past Jz's rank
+    U, s, _ = np.linalg.svd(Jz)
+    top = s.max(axis=-1, initial=0.0)
+    rank = np.sum(s > 1e-10 * top[..., None], axis=-1) * (top > 0)
+    null = np.arange(m) >= rank[..., None]  # (…, m)
+    C = noise.length**2 * np.eye(m) + (JT * (noise.tension * T[..., None, :])**2) @ np.swapaxes(
+        JT, -1, -2)
+    r = np.where(null, np.einsum("...ji,...j->...i", U, e), 0.0)
+    Cu = np.swapaxes(U, -1, -2) @ C @ U
+    both = null[..., :, None] & null[..., None, :]
+    Cn = np.where(both, Cu, np.eye(m))  # the null space's block, identity elsewhere
+    chi2 = np.einsum("...i,...i->...", r, np.linalg.solve(Cn, r[..., None])[..., 0])
+    dof = m - rank
+    with np.errstate(invalid="ignore"):
+        over = (dof >= 1) & (chi2 > chdtri(np.maximum(dof, 1), 1 - MISFIT_QUANTILE))
+    rms = np.sqrt(np.mean(e**2, axis=-1))
+    notes = [""] * len(e)
+    for k in np.flatnonzero(over):
+        notes[k] = (f"{MISFIT}: the measured lengths are met "
+                    f"to {rms[k] * 1e3:.3g} mm RMS, {np.sqrt(chi2[k] / dof[k]):.2g} times what "
+                    f"the length and tension noise explain (is a tendon swapped or "
+                    f"mislabelled, a force's X or direction wrong, a load not given?); the ± "
+                    f"assumes the noise alone")
+    return notes
 
 
 def misfit_note(Jz, JT, misfit, tensions, noise: Noise) -> str:
-    """A note where the length misfit ``misfit`` (m, per measured tendon) a least-squares
-    estimate leaves is more than the sensor noise explains, or '': its χ² against the
-    covariance the noise gives that misfit (``Jz``, ``JT``: the measured lengths'
-    sensitivities to the magnitudes and to the ``tensions``, the length noise and the relative
-    tension noise through ``JT``, on the left null space of ``Jz``: what the magnitudes
-    cannot absorb), over as many degrees of freedom as that space has."""
-    from scipy.special import chdtri
-    Jz, JT, e = (np.asarray(a, float) for a in (Jz, JT, misfit))
-    # the misfit's part the magnitudes cannot absorb: on N, the left null space of Jz
-    U, s, _ = np.linalg.svd(Jz)
-    rank = int(np.sum(s > 1e-10 * s.max())) if s.size and s.max() > 0 else 0
-    N = U[:, rank:]
-    dof = N.shape[1]
-    if dof < 1:
-        return ""
-    C = noise.length**2 * np.eye(len(e)) + (JT * (noise.tension * np.asarray(
-        tensions, float))**2) @ JT.T
-    r = N.T @ e
-    chi2 = float(r @ np.linalg.solve(N.T @ C @ N, r))
-    if not chi2 > chdtri(dof, 1 - MISFIT_QUANTILE):
-        return ""
-    rms = float(np.sqrt(np.mean(e**2)))
-    return (f"the readings disagree beyond their noise: the measured lengths are met to "
-            f"{rms * 1e3:.3g} mm RMS, {np.sqrt(chi2 / dof):.2g} times what the length and "
-            f"tension noise explain (is a tendon swapped or mislabelled, a force's X or "
-            f"direction wrong, a load not given?); the ± assumes the noise alone")
+    """:func:`misfit_notes` of one estimate."""
+    return misfit_notes(*(np.asarray(a, float)[None] for a in (Jz, JT, misfit, tensions)),
+                        noise)[0]
 
 
 #: two magnitudes whose estimates correlate beyond this are confounded: the readings fix a

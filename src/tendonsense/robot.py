@@ -463,6 +463,9 @@ def _parse_rod(r: _Reader) -> Rod:
     if disk_radius is not None and disk_radius < widest:
         r.fail("disk_radius", f"spacer disks ({disk_radius:g} m) must be at least as wide as "
                               f"the rod ({widest:g} m)")
+    if disk_radius is not None and disk_radius > L / 2:
+        r.fail("disk_radius", f"{disk_radius:g} m is more than half the rod's length ({L:g} m): "
+                              f"spacer disks of a slender rod (lengths are in metres)")
     material = {k: r.number(k, default=0.0 if k == "damping" else None)
                 for k in ("young_modulus", "poisson_ratio", "density", "damping")}
     for k, v in material.items():

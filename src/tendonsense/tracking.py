@@ -20,8 +20,8 @@ from .inputs import (Noise, check_noise, first_force_error, friction_signs, max_
                      tendon_vector, tension_error)
 from .model import VALUE_NAMES
 from .online import RESCUE_BUDGET, OnlineEstimator
-from .problem import Problem, band, confounded, covariance  # noqa: F401 (API)
-from .result import SampleEstimate, compact_repr
+from .problem import Problem, band, confounded, covariance, misfit_notes  # noqa: F401 (API)
+from .result import SampleEstimate, compact_repr, joined
 from .robot import Robot, value_error
 from .sliding import Band, FrictionHistory, labels, turning_program
 from .statics import Drive, Unknowns, shape_outputs, solve_system
@@ -148,6 +148,9 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                               stuck[run])
             over = prob.overloaded(tr.x[:len(run)], varied["young_modulus"][run]
                                    if "young_modulus" in varied else None)
+            misfit = [""] * len(run) if len(meas) == prob.n_z else misfit_notes(
+                tr.Jz[:len(run)], tr.JT[:len(run)],
+                tr.lengths[:len(run)][:, meas] - Y[run][:, meas], T[run][:, list(tcols)], noise)
             solved_x = None  # the last solution of the equations (the next scan starts there)
             for j, k in enumerate(run):
                 friction = {} if history is None else dict(friction_state=states[j],
@@ -156,8 +159,9 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                     out[k] = SampleEstimate(
                         tr.x[j, model.nq:], sigma[j],
                         dict(zip(robot.marker_names, tr.markers[j])), not over[j],
-                        int(tr.iterations[j]), tr.x[j], over[j] or (
-                            "" if cov is None else confounded(cov[j], prob.n_magnitudes)),
+                        int(tr.iterations[j]), tr.x[j], over[j] or joined(
+                            misfit[j], "" if cov is None else confounded(cov[j],
+                                                                          prob.n_magnitudes)),
                         **friction)
                 elif not persistent and last_failed:
                     out[k] = replace(SampleEstimate.failed(
