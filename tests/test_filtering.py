@@ -264,7 +264,7 @@ def test_cli_dynamic(tmp_path, slow_rod):
             (("--displacement", "t1=-0.003", "--tension", "t1=2", "--dynamic"), 2,
              "--dynamic goes with --readings"),
             (("--readings", log, "--force-walk", "0.1"), 2, "--force-walk goes with"),
-            (("--readings", log, "--dynamic", "--force-walk", "-1"), 2, "positive")):
+            (("--readings", log, "--dynamic", "--force-walk", "-1"), 1, "positive")):
         bad = tmp_path / "bad.csv"
         to = ("-o", bad) if "--readings" in args else ()
         r = _cli("estimate", toml, "--unknown", f"{X},0,0,-1", *args, *to)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from conftest import PROTOTYPE, ROOT
-from tendonsense import inputs
+from tendonsense import inputs, load_robot
 from tendonsense.estimation import Noise, PointForceUnknown, estimate, problem
 from tendonsense.forward import forward_kinematics, solve
 from tendonsense.identification import Snapshot, SnapshotError, identify
@@ -1366,6 +1366,71 @@ def test_an_overdetermined_estimate_that_misses_its_readings_says_so(prototype):
         assert r.converged and (words in r.extra.get("note", "")) == flagged, r.extra
 
 
+def test_schedule_and_snapshot_slips_name_their_row_and_reason(tmp_path):
+    """A tension schedule's time that goes back names its row (was "time must start at >= 0 s
+    and increase from row to row"); a mistyped sliding word in a snapshot is not told it is
+    "stuck" (was "a stuck tendon's friction is not known"); a schedule that starts after the
+    run is said to hold its first row (was "only the start of its first ramp is simulated")."""
+    (tmp_path / "back.csv").write_text("time,tension_t1\n0,1\n1,2\n0.5,3\n")
+    code, err, _ = refused_before_jax("simulate", PROTOTYPE, "--tensions", "back.csv",
+                                      "--duration", "1", "-o", "s.csv", cwd=tmp_path)
+    assert code == 1 and "back.csv: row 3: time 0.5 s is not after row 2's 1 s" in err, err
+    text = (ROOT / "examples" / "tutorial" / "snapshots.csv").read_text().splitlines()
+    (tmp_path / "snaps.csv").write_text("\n".join(
+        [text[0] + ",sliding_t1"] + [line + ",paid" for line in text[1:]]) + "\n")
+    code, err, _ = refused_before_jax("identify", PROTOTYPE, "--snapshots", "snaps.csv",
+                                      cwd=tmp_path)
+    assert code == 1 and "'paid' is not in or out (a snapshot's tendon is pulled in or paid " \
+        "out)" in err, err
+    (tmp_path / "log.csv").write_text("time,tension_t1,displacement_t1,note\n0,1,-0.004,a\n"
+                                      "0.01,1.1,-0.0045,\n")  # a recorded log (was refused)
+    from tendonsense.readings import read_tension_schedule
+    t, T = read_tension_schedule(tmp_path / "log.csv", load_robot(PROTOTYPE))["t1"]
+    assert t.tolist() == [0.0, 0.01] and T.tolist() == [1.0, 1.1]
+    (tmp_path / "late.csv").write_text("time,tension_t1\n5,1\n6,2\n")
+    p = cli("simulate", PROTOTYPE, "--tensions", "late.csv", "--duration", "0.02", "-o",
+            "s.csv", cwd=tmp_path)
+    assert p.returncode == 0 and "its first row is at 5 s, not before --duration 0.02 s: the " \
+        "tensions stay at that row's throughout" in p.stderr, p.stderr
+
+
+def test_a_log_of_poorly_determined_magnitudes_stays_with_the_single_estimate(prototype,
+                                                                             tmp_path):
+    """Two forces along z (tip and mid) from three tendons that see one in-plane bending: the
+    readings fix a combination of them. A log's first row landed elsewhere on that combination
+    (0.168 ± 0.014 N and -1.10 ± 0.13 N for a truth of 0 and 0, where the single estimate of
+    the row has 0.018 and -0.088) and later rows slid along it to unstable equilibria with
+    tight bands (1.03 and -4.70 N, 67 σ off). Now the first row is the single estimate, file
+    and stream, and no row is more than 4 σ from the truth."""
+    import io
+    from tendonsense.logs import estimate_file, stream_readings
+    n = 12
+    T1 = np.linspace(1.9, 4.8, n)
+    out = solve_batch(prototype, {"t1": T1, "t2": 0 * T1, "t3": 0 * T1})
+    rng = np.random.default_rng(7)
+    y = {t: out.displacements[t] + rng.normal(0, 1e-4, n) for t in ("t1", "t2", "t3")}
+    T1 = T1 * (1 + rng.normal(0, 0.005, n))
+    log = tmp_path / "log.csv"
+    log.write_text("tension_t1,tension_t2,tension_t3,displacement_t1,displacement_t2,"
+                   "displacement_t3\n" + "".join(
+                       f"{T1[k]},0,0,{y['t1'][k]},{y['t2'][k]},{y['t3'][k]}\n" for k in range(n)))
+    unknowns = [TIP, PointForceUnknown(0.125, (0, 0, -1))]
+    noise = Noise(tension=0.005)
+    single = estimate(prototype, {t: y[t][0] for t in y}, {"t1": T1[0], "t2": 0, "t3": 0},
+                      unknowns, noise=noise)
+    estimate_file(prototype, log, tmp_path / "out.csv", unknowns, noise=noise)
+    streamed = io.StringIO()
+    stream_readings(prototype, io.StringIO(log.read_text()), streamed, unknowns, noise=noise)
+    for rows in (list(csv.DictReader(open(tmp_path / "out.csv"))),
+                 list(csv.DictReader(io.StringIO(streamed.getvalue())))):
+        z = np.array([[float(r[f"magnitude_{i}"]) for i in (1, 2)] for r in rows])
+        sigma = np.array([[float(r[f"sigma_{i}"]) for i in (1, 2)] for r in rows])
+        np.testing.assert_allclose(z[0], single.magnitudes, rtol=1e-6, atol=1e-9)
+        good = [r["converged"] == "true" for r in rows]
+        assert sum(good) >= n - 1
+        assert np.all(np.abs(z[good]) <= 4 * sigma[good]), (z, sigma)
+
+
 def test_an_overdetermined_log_that_misses_its_readings_says_so(prototype, tmp_path):
     """The same test on every row of a three-tendon log (file, CLI and stream): t1's and t2's
     length columns swapped, the rows say so and the CLI counts them (the log's rows had no
@@ -1433,14 +1498,19 @@ def test_a_robot_file_slip_of_a_new_robots_kind_is_refused(tmp_path, edit, words
 
 
 def test_the_python_api_names_a_slip_of_its_arguments(prototype):
-    """A path for a robot (was an AttributeError), a bool for a tension (was 1 N), a
-    misspelled tendon in a live update (was 'displacement t1: missing')."""
+    """A path for a robot (was an AttributeError), a bool for a tension (was 1 N), a start of
+    the wrong size, a NaN in a batch, a misspelled tendon in a live update (was 'displacement
+    t1: missing')."""
     for call in (lambda: solve(str(PROTOTYPE), {"t1": 1.0}),
                  lambda: estimate(str(PROTOTYPE), {"t1": -0.005}, {"t1": 2.1}, [TIP])):
         with pytest.raises(ValueError, match="robot: a Robot, such as tendonsense.load_robot"):
             call()
     with pytest.raises(ValueError, match="tension t1: not a number: True"):
         solve(prototype, {"t1": True})
+    with pytest.raises(ValueError, match=r"q0: 3 values .* 15 strain coordinates"):
+        solve(prototype, {"t1": 1.0}, q0=[0.0, 0.0, 0.0])  # (was numpy's reshape error)
+    with pytest.raises(ValueError, match=r"batch: sample 2: tension t1: not a finite number"):
+        solve_batch(prototype, {"t1": [1.0, np.nan]})  # (was no sample, no tendon)
     live = OnlineEstimator(problem(prototype, ["t1"], [TIP]))
     assert "displacement T1: no such tendon" in live.update({"T1": -0.005}, {"t1": 2.1}).note
     assert live.update({"t1": -0.005}, {"t1": 2.1}).converged

@@ -205,3 +205,37 @@ def test_an_estimated_forces_label_keeps_its_band_on_a_line_of_its_own():
     e = plotting.Estimated(0.3, (0.04981, 0, 0), 0.1539, None, 0.317)
     assert plotting._estimate_label(e) == ("0.04981 N (5.1 gF)\n± 0.15 N (15.7 gF)\n"
                                            "at X = 300 ± 317 mm")
+
+
+def test_a_simulation_figure_leaves_out_failed_samples_and_keeps_its_time_axis(monkeypatch,
+                                                                            tmp_path):
+    """Failed samples were drawn as a still rod (the curves flat at the last converged value,
+    the length axis at 1e-14 mm); a robot without markers had no numbers on its time axis."""
+    kept = []
+    monkeypatch.setattr(plotting, "_save", lambda fig, path, tight=True: kept.append(fig))
+    t = np.linspace(0.0, 0.5, 11)
+    ok = t < 0.2
+    y = np.where(ok, -0.01 * t, 0.0)
+    sim = SimpleNamespace(time=t, tensions={"t1": 1 + t}, friction_state={"t1": 1 + 0 * t},
+                          displacements={"t1": y}, markers={}, converged=ok)
+    plotting.simulation(sim, tmp_path / "m.png")
+    fig = kept[-1]
+    fig.canvas.draw()
+    lengths = fig.axes[1]
+    drawn = lengths.lines[0].get_ydata()
+    assert np.all(np.isnan(drawn[~ok])) and np.allclose(drawn[ok], y[ok] * 1e3)
+    assert [tick.get_text() for tick in lengths.get_xticklabels() if tick.get_text()]
+    lonely = SimpleNamespace(**{**vars(sim), "converged": t < 0.01})  # one sample: a dot
+    plotting.simulation(lonely, tmp_path / "m.png")
+    line = kept[-1].axes[1].lines[0]
+    assert line.get_marker() == "." and list(line.get_markevery()) == [0]
+    kept[-1].canvas.draw()
+    assert kept[-1].axes[1].yaxis.get_offset_text().get_text() == ""  # (was "1e-14")
+    flat = SimpleNamespace(**{**vars(sim), "displacements": {"t1": -0.003 + 1e-17 * t},
+                              "converged": t >= 0})  # a still tendon: ±0.5 mm, no offset
+    plotting.simulation(flat, tmp_path / "m.png")
+    kept[-1].canvas.draw()
+    assert np.diff(kept[-1].axes[1].get_ylim())[0] == pytest.approx(1.0)
+    assert kept[-1].axes[1].yaxis.get_offset_text().get_text() == ""
+    for f in kept:
+        plt.close(f)

@@ -756,8 +756,13 @@ def _check_simulate(args, robot):
     both = [n for n in schedule if n in args.tension]
     if both:
         raise UsageError(f"tendonsense simulate: tendon {both[0]}: in --tensions and --tension")
+    firsts = [t[0] for t, _ in schedule.values()]
     nexts = [t[1] for t, _ in schedule.values() if t.size > 1]
-    if nexts and min(nexts) > args.duration:
+    if firsts and min(firsts) >= args.duration:
+        print(f"tendonsense: note: {args.tensions}: its first row is at {min(firsts):g} s, not "
+              f"before --duration {args.duration:g} s: the tensions stay at that row's "
+              f"throughout (times are in seconds)", file=sys.stderr)
+    elif nexts and min(nexts) > args.duration:
         print(f"tendonsense: note: {args.tensions}: its second row is at {min(nexts):g} s, after "
               f"--duration {args.duration:g} s: only the start of its first ramp is simulated "
               f"(times are in seconds)", file=sys.stderr)

@@ -101,7 +101,8 @@ def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
     drive = _statics_drive(robot, tensions, point_forces)
     values = sliding_values(robot, model.values, sliding)
     unknowns = Unknowns.none(len(robot.tendons), drive.load_X.shape[0])
-    res = solve_system(model.structure, values, (), drive, unknowns, q0)
+    res = solve_system(model.structure, values, (), drive, unknowns,
+                       inputs.start(q0, model.nq))
     shaky = unstable(values, tangent(values, res, model.nq)) if bool(res.converged) else ""
     return make_result(model, res.x, np.asarray(drive.tensions), res,
                        **({"extra": {"note": shaky}} if shaky else {}))
@@ -133,7 +134,7 @@ def forward_kinematics(robot: Robot, displacements: Mapping[str, float],
     unknowns = Unknowns.none(len(robot.tendons), drive.load_X.shape[0], n_z)._replace(
         tensions=select)
     res = solve_system(model.structure, sliding_values(robot, model.values, sliding), measured,
-                       drive, unknowns, q0)
+                       drive, unknowns, inputs.start(q0, model.nq))
     T = np.asarray(drive.tensions) + select @ np.asarray(res.x[model.nq:])
     pushing = [k for k in measured if T[k] < -TENSION_TOL * max(1.0, np.abs(T).max())]
     if pushing and bool(res.converged):

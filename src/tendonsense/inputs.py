@@ -42,6 +42,23 @@ def finite(name: str, value) -> float:
     return v
 
 
+def start(q0, nq: int) -> np.ndarray | None:
+    """A solve's start ``q0`` (None: the straight rod) as an array of the robot's ``nq``
+    strain coordinates (a solution's ``Result.q``), or a ValueError saying what it is."""
+    if q0 is None:
+        return None
+    try:
+        q = np.asarray(q0, float)
+    except (TypeError, ValueError):
+        raise ValueError(f"q0: not an array of numbers: {q0!r}") from None
+    if q.shape != (nq,):
+        raise ValueError(f"q0: {q.size} values of shape {q.shape}; the robot has {nq} strain "
+                         f"coordinates (a solution's Result.q)")
+    if not np.all(np.isfinite(q)):
+        raise ValueError("q0: not finite")
+    return q
+
+
 @lru_cache(maxsize=64)
 def rest_lengths(robot: Robot) -> np.ndarray:
     """Every tendon's path length on the straight rod (l* of eq. 9), m (read-only)."""

@@ -151,6 +151,12 @@ class OnlineEstimator:
         if prob.located and self._x is None:  # no X yet: search its whole range
             return self._after_rescue(T, targets, displacements, tensions, None, 0,
                                       "no estimate of the location", None, said)
+        if self._x is None and len(prob.measured) > prob.n_z:
+            # a least-squares fit's first sample as a single estimate (as a file log's: the
+            # fast path's undamped first step may land elsewhere on a poorly determined
+            # combination of the magnitudes)
+            return self._after_rescue(T, targets, displacements, tensions, None, 0,
+                                      "did not converge", None, said)
         if self._state is None:
             x0 = np.zeros(prob.model.nq + prob.n_z)
             self._state = self._live.start(x0, self._reading(T, targets, said), self._loads,

@@ -656,15 +656,21 @@ AXIS_COLOURS = {"x": "tab:red", "y": "tab:purple", "z": "tab:brown"}
 def _repeats(curve, drawn) -> str | None:
     """The name of an earlier curve of ``drawn`` [(name, curve)] that ``curve`` repeats (to
     0.1 µm, 1e-7 N), or None."""
-    return next((m for m, c in drawn if np.allclose(curve, c, rtol=0, atol=1e-7)), None)
+    return next((m for m, c in drawn if np.allclose(curve, c, rtol=0, atol=1e-7,
+                                                     equal_nan=True)), None)
 
 
 def simulation(sim, path, title: str = "simulated motion", given: str = ""):
     """A simulated motion over time: the tensions (N; solid pulled in, dotted stuck, dashed
     paid out) and the tendon length changes (mm), a tendon whose curve repeats an earlier
     one's drawn dashed over it, and the last marker's position relative to its start (mm);
-    samples that did not converge shaded. ``given`` is a second title line."""
+    samples that did not converge shaded, their shapes left out (no curve through them, as
+    the log leaves their cells empty). ``given`` is a second title line."""
     t = sim.time
+    bad = ~np.asarray(sim.converged)
+    # a converged sample between failed ones: a dot (a line through one point is not drawn)
+    alone = np.flatnonzero(~bad & ~np.r_[False, ~bad[:-1]] & ~np.r_[~bad[1:], False]).tolist()
+    dots = dict(marker=".", markevery=alone) if alone else {}
     fig, axes = plt.subplots(3, 1, figsize=(7.5, 7), sharex=True)
     drawn = []
     for n, T in sim.tensions.items():
@@ -686,19 +692,25 @@ def simulation(sim, path, title: str = "simulated motion", given: str = ""):
     axes[0].set_ylabel("tension (N)")
     drawn = []
     for n, y in sim.displacements.items():
+        y = np.where(bad, np.nan, y)
         again = _repeats(y, drawn)
-        axes[1].plot(t, y * 1e3, "--" if again else "-",
+        axes[1].plot(t, y * 1e3, "--" if again else "-", **dots,
                      label=n if again is None else f"{n} (as {again})")
         drawn.append((n, y))
     axes[1].set_ylabel("length change (mm)\n(negative = pulled in)")
     if sim.markers:
         name, p = list(sim.markers.items())[-1]
         for i, a in enumerate("xyz"):
-            axes[2].plot(t, (p[:, i] - p[0, i]) * 1e3, color=AXIS_COLOURS[a], label=a)
+            axes[2].plot(t, np.where(bad, np.nan, p[:, i] - p[0, i]) * 1e3, **dots,
+                         color=AXIS_COLOURS[a], label=a)
         axes[2].set_ylabel(f"marker {name}:\nmove from start (mm)")
     else:
         axes[2].set_visible(False)
-    bad = ~np.asarray(sim.converged)
+        axes[1].tick_params(labelbottom=True)  # (the shared axis's numbers were below axes[2])
+    for ax in axes[1:]:  # a span under a micrometre: ±0.5 mm, not an offset of 1e-14
+        lo, hi = ax.get_ylim()
+        if hi - lo < 1e-3:
+            ax.set_ylim((lo + hi) / 2 - 0.5, (lo + hi) / 2 + 0.5)
     for ax in axes:
         if bad.any():
             for k in np.flatnonzero(bad):

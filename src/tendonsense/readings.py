@@ -495,9 +495,10 @@ def read_snapshots(path: str | Path, robot: Robot, young_modulus: float | None =
         for n in robot.tendon_names:
             word = (row.get(f"sliding_{n}") or "").strip().lower()
             if word and word not in ("in", "out"):
+                why = ("a stuck tendon's friction is not known: leave the snapshot out"
+                       if word == "stuck" else "a snapshot's tendon is pulled in or paid out")
                 raise SnapshotError(f"{path}: snapshot row {i}: column sliding_{n}: {word!r} "
-                                    f"is not in or out (a stuck tendon's friction is not "
-                                    f"known: leave the snapshot out)")
+                                    f"is not in or out ({why})")
             if word:
                 sliding[n] = word
         out.append(Snapshot(tensions, pos, load, lengths, sliding))
@@ -811,7 +812,9 @@ def read_tension_schedule(path: str | Path,
                           robot: Robot) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Tensions over time for :func:`~tendonsense.simulation.simulate`: a CSV with ``time``
     (s, increasing) and ``tension_<name>`` for some tendons; {name: (times, tensions)}.
-    Every value is checked by the rules of :mod:`tendonsense.inputs`."""
+    Every value is checked by the rules of :mod:`tendonsense.inputs`. Descriptive columns
+    (:data:`DESCRIPTIVE`) and a readings log's other columns (``displacement_``,
+    ``sliding_``, ``marker_``) are not read: a recorded log's own tensions can be simulated."""
     path = Path(path)
     rows = read_csv_rows(path, ReadingsError)
     if not rows:
@@ -820,19 +823,28 @@ def read_tension_schedule(path: str | Path,
     header = [h.strip() for h in rows[0]]
     names = [h.removeprefix("tension_") for h in header if h.startswith("tension_")]
     for col in header:
-        if col != "time" and not (col.startswith("tension_") and col[8:] in robot.tendon_names):
-            raise ReadingsError(no_such(path, col, robot, ("tension",), False)
-                                or f"{path}: column {col!r}: not time or tension_<tendon>")
+        if col in DESCRIPTIVE or (col.startswith("tension_") and col[8:] in robot.tendon_names):
+            continue
+        kind, _, name = col.partition("_")
+        if not (error := no_such(path, col, robot)) and (
+                kind in ("displacement", "sliding") and name in robot.tendon_names
+                or kind == "marker" and name[-2:] in ("_x", "_y", "_z")):
+            continue
+        raise ReadingsError(error or f"{path}: column {col!r}: not time, tension_<tendon>, "
+                                     f"a readings log's column or descriptive "
+                                     f"({', '.join(DESCRIPTIVE)})")
     if "time" not in header or not names:
         raise ReadingsError(f"{path}: needs a time column and at least one tension_<tendon>")
     _once(path, header, ReadingsError)
     if len(rows) < 2:
         raise ReadingsError(f"{path}: no rows after the header")
-    data = np.empty((len(rows) - 1, len(header)))
+    used = [j for j, col in enumerate(header) if col == "time" or col.startswith("tension_")]
+    data = np.full((len(rows) - 1, len(header)), np.nan)
     for i, raw in enumerate(rows[1:], start=1):
         if len(raw) != len(header):
             raise ReadingsError(f"{path}: row {i}: {len(raw)} values for {len(header)} columns")
-        for j, (col, text) in enumerate(zip(header, raw)):
+        for j in used:
+            col, text = header[j], raw[j]
             try:
                 data[i - 1, j] = float(text)
             except ValueError:
@@ -842,8 +854,12 @@ def read_tension_schedule(path: str | Path,
             if col != "time" and (error := tension_error(robot, col[8:], data[i - 1, j])):
                 raise ReadingsError(f"{path}: row {i}: {error}")
     t = data[:, header.index("time")]
-    if np.any(np.diff(t) <= 0) or t[0] < 0:
-        raise ReadingsError(f"{path}: time must start at >= 0 s and increase from row to row")
+    if t[0] < 0:
+        raise ReadingsError(f"{path}: row 1: time {t[0]:g} s: the schedule starts at >= 0 s")
+    if (back := np.flatnonzero(np.diff(t) <= 0)).size:
+        k = int(back[0]) + 1
+        raise ReadingsError(f"{path}: row {k + 1}: time {t[k]:g} s is not after row {k}'s "
+                            f"{t[k - 1]:g} s (times increase from row to row)")
     return {n: (t, data[:, header.index(f"tension_{n}")]) for n in names}
 
 

@@ -186,7 +186,7 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
 
     model = model_for(robot)
     nq = model.nq
-    q = np.zeros(nq) if q0 is None else np.asarray(q0, float).reshape(nq)
+    q = np.zeros(nq) if q0 is None else inputs.start(q0, nq)
     if at is None:
         # (0.35, not k × 0.01 = 0.35000000000000003, in the readings' time column); the
         # last row at the duration, also where output_dt does not divide it

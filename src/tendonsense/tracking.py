@@ -121,6 +121,15 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
     # the first sample from the straight rod on the scan itself (its exact Jacobian and line
     # search), the solver with load continuation only if that fails (a rescue)
     x0 = np.zeros(model.nq + prob.n_z) if start is None else start
+    if start is None and valid and len(meas) > prob.n_z:
+        # a least-squares fit's first sample as a single estimate (Levenberg–Marquardt from
+        # the straight rod): where the readings leave the magnitudes poorly determined, the
+        # scan's undamped first step would land elsewhere on their blind direction
+        k = valid[0]
+        first = estimate_problem(prob, displacements[k], tensions[k], noise,
+                                 values=model.values._replace(
+                                     **{name: a[k] for name, a in varied.items()}))
+        x0 = np.asarray(first.extra["x"], float) if first.converged else x0
     seen_good, last_failed, done = False, False, 0
     for at in range(0, len(valid), chunk):
         idx = valid[at:at + chunk]
@@ -367,8 +376,12 @@ def batch_inputs(robot: Robot, base, tensions, point_forces, values):
         if point_forces else np.zeros((n, 0))
     F = np.stack([np.broadcast_to(np.asarray(f, float), (n, 3)) for _, f in point_forces],
                  axis=1) if point_forces else np.zeros((n, 0, 3))
-    if not (np.all(np.isfinite(T)) and np.all(np.isfinite(X)) and np.all(np.isfinite(F))):
-        raise ValueError("batch: tensions and point forces must be finite")
+    for what, a in (("tension", T), ("point force", X), ("point force", F)):
+        if not np.all(np.isfinite(a)):
+            k, j = np.argwhere(~np.isfinite(a))[0][:2]
+            name = names[j] if what == "tension" else str(j + 1)
+            raise ValueError(f"batch: sample {k + 1}: {what} {name}: not a finite number "
+                             f"({a[k, j]})")
     varied = varied_values(base, values, n)
     E = np.broadcast_to(varied.get("young_modulus", robot.rod.young_modulus), (n,))
     for j, name in enumerate(names):  # each sample's tensions by the rule, with its own E
