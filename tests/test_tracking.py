@@ -105,6 +105,40 @@ def test_least_squares_fast_path_matches_plain_path_on_noisy_readings(prototype)
         np.testing.assert_allclose(fast[k].sigma, plain.sigma, rtol=1e-6)
 
 
+def test_the_scans_reduced_jacobians_are_the_plain_paths(prototype):
+    """The least-squares scan's ∂y/∂z and ∂y/∂T (its misfit test's, from its Gauss–Newton
+    elimination) are :func:`~tendonsense.problem.reduced_jacobians` at its solution, and its
+    rows' misfit notes the single estimate's; a row that is not finite (a failed sample's)
+    gets no note instead of stopping the log."""
+    import jax
+    from tendonsense.fastpath import stacked_drives, tracker
+    from tendonsense.inputs import Noise
+    from tendonsense.problem import misfit_note, misfit_notes, reduced_jacobians
+    n = 6
+    T = np.tile([1.0, 0.5, 0.7], (n, 1)) * np.linspace(1, 2, n)[:, None]
+    prob, disp, ten = _noisy_three_tendons(prototype, T, np.linspace(0.1, 0.3, n), 5)
+    disp[3] = {**disp[3], "t1": disp[3]["t2"], "t2": disp[3]["t1"]}  # swapped: a note
+    Tm, Y, _ = prob.many_readings(disp, ten, None)
+    meas, tcols = list(prob.measured), (0, 1, 2)
+    drives = stacked_drives(prob, Tm, Y[:, meas])
+    tr = jax.device_get(tracker(prob.model.structure, prob.measured, prob.n_z, tcols)(
+        np.zeros(prob.model.nq + 1), drives, prob.unknowns, prob.model.values, {}))
+    assert tr.converged.all()
+    for k in range(n):
+        drive = jax.tree_util.tree_map(lambda a: a[k], drives)
+        Jz, JT = reduced_jacobians(prob, tr.x[k], drive, prob.model.values)
+        np.testing.assert_allclose(tr.Jz[k], Jz, rtol=1e-9, atol=1e-15)
+        np.testing.assert_allclose(tr.JT[k], JT[:, list(tcols)], rtol=1e-9, atol=1e-15)
+    e = tr.lengths[:, meas] - Y[:, meas]
+    notes = misfit_notes(tr.Jz, tr.JT, e, Tm, Noise())
+    assert [bool(x) for x in notes] == [k == 3 for k in range(n)], notes
+    assert notes[3] and notes[3] in estimate_problem(prob, disp[3], ten[3]).extra["note"]
+    assert notes[3] == misfit_note(tr.Jz[3], tr.JT[3], e[3], Tm[3], Noise())
+    failed = tr.Jz.copy()
+    failed[2] = np.nan
+    assert misfit_notes(failed, tr.JT, e, Tm, Noise()) == notes[:2] + [""] + notes[3:]
+
+
 def test_batch_estimation_over_values(log, prototype):
     """A Monte Carlo over friction: every sample with its own μ matches the plain path with
     that μ."""

@@ -1290,7 +1290,7 @@ def _log(args, robot) -> bool:
             pin({args.cpu})
         return _stream(args, robot, noise)
     from . import readings as rd
-    from .logs import estimate_chunks, misfit_rows
+    from .logs import disagreeing, estimate_chunks, misfit_rows
     measured, samples = args.log
     forces, unknowns = _point_forces(args), args.unknown
     where = rd.located(unknowns)
@@ -1299,8 +1299,7 @@ def _log(args, robot) -> bool:
     to_file = args.estimates not in (None, "-")
     out = rd.AtomicText(args.estimates) if to_file else sys.stdout
     prog = _Progress(args, "estimate")
-    good = shown = 0
-    done: list = []
+    good = shown = disagree = 0
     try:
         writer = csv.writer(out, lineterminator="\n")
         writer.writerow(rd.output_header(robot, len(unknowns), with_shape, where, follow))
@@ -1313,7 +1312,7 @@ def _log(args, robot) -> bool:
                 writer.writerow(rd.output_row(robot, s, r, len(unknowns), with_shape, where,
                                               follow))
                 good += r.converged
-            done += estimates
+            disagree += disagreeing(estimates)
             out.flush()
             prog(first + len(estimates), len(samples))
         if to_file:
@@ -1327,7 +1326,7 @@ def _log(args, robot) -> bool:
             out.close()
     skipped = sum(bool(s.error) for s in samples)
     _more_skipped(args.readings, skipped - shown)
-    if note := misfit_rows(done):
+    if note := misfit_rows(disagree, len(samples)):
         print(f"tendonsense: {args.readings}: note: {note}", file=sys.stderr)
     if to_file:
         summary = {"samples": len(samples), "converged": good, "skipped": skipped,

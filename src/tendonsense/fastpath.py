@@ -290,13 +290,15 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         st = jax.lax.while_loop(cond, body, st)
         x = st["x"]
         fine = admissible(vs[0], x[:nq])
-        # a stationary point at an unstable equilibrium is no state the robot holds: where the
-        # magnitudes are poorly determined the fit can slide to one along the readings'
-        # blind direction (the sample is then solved on its own, from the straight rod); the
-        # stiffness ratios of :func:`~tendonsense.statics.unstable`: the eigenvalues of
+        # a stationary point at an unstable equilibrium, reached from the last sample's
+        # solution, is no state the robot holds: where the magnitudes are poorly determined
+        # the fit can slide to one along the readings' blind direction (the sample is then
+        # solved on its own, from the straight rod; a sample started afresh, e.g. from such a
+        # solution, is taken as it is); the stiffness ratios of
+        # :func:`~tendonsense.statics.unstable`: the eigenvalues of
         # (E K)⁻¹ ∂E/∂q = L⁻ᵀ J_qq / √E with J_qq = L⁻¹ ∂E/∂q / √E
         ratios = jnp.linalg.eigvals(st["J"][:nq, :nq] @ vs[1].L_inv.T).real
-        ok = (st["status"] == 1) & fine & (jnp.min(ratios) >= -UNSTABLE)
+        ok = (st["status"] == 1) & fine & (~carry.ok | (jnp.min(ratios) >= -UNSTABLE))
         # Gauss–Newton sensitivity to the measurements [y_meas; T] (as the uncertainty of
         # eq. 17 in :mod:`tendonsense.estimation`): the same elimination, right-hand side R_m
         Ry = jnp.zeros((x.size - n_z + sel.size, sel.size)).at[

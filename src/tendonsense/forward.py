@@ -134,7 +134,7 @@ def forward_kinematics(robot: Robot, displacements: Mapping[str, float],
     unknowns = Unknowns.none(len(robot.tendons), drive.load_X.shape[0], n_z)._replace(
         tensions=select)
     res = solve_system(model.structure, sliding_values(robot, model.values, sliding), measured,
-                       drive, unknowns, inputs.start(q0, model.nq))
+                       drive, unknowns, inputs.start(q0, model.nq, model.nq + n_z))
     T = np.asarray(drive.tensions) + select @ np.asarray(res.x[model.nq:])
     pushing = [k for k in measured if T[k] < -TENSION_TOL * max(1.0, np.abs(T).max())]
     if pushing and bool(res.converged):

@@ -42,16 +42,17 @@ def finite(name: str, value) -> float:
     return v
 
 
-def start(q0, nq: int) -> np.ndarray | None:
+def start(q0, nq: int, n_x: int | None = None) -> np.ndarray | None:
     """A solve's start ``q0`` (None: the straight rod) as an array of the robot's ``nq``
-    strain coordinates (a solution's ``Result.q``), or a ValueError saying what it is."""
+    strain coordinates (a solution's ``Result.q``; or all ``n_x`` unknowns of the solve), or a
+    ValueError saying what it is."""
     if q0 is None:
         return None
     try:
         q = np.asarray(q0, float)
     except (TypeError, ValueError):
         raise ValueError(f"q0: not an array of numbers: {q0!r}") from None
-    if q.shape != (nq,):
+    if q.shape not in ((nq,), (n_x or nq,)):
         raise ValueError(f"q0: {q.size} values of shape {q.shape}; the robot has {nq} strain "
                          f"coordinates (a solution's Result.q)")
     if not np.all(np.isfinite(q)):

@@ -168,11 +168,15 @@ def _stuck_ranges(prob, rows: Sequence[Sample], estimates: list[SampleEstimate],
     return out
 
 
-def misfit_rows(estimates: Sequence[SampleEstimate]) -> str:
-    """A log's note counting its rows whose readings disagree beyond their noise
-    (:func:`~tendonsense.problem.misfit_notes`), or ''."""
-    n = sum(MISFIT in e.note for e in estimates)
-    return (f"{n} of {len(estimates)} rows: {MISFIT} (their note column says by how "
+def disagreeing(estimates: Sequence[SampleEstimate]) -> int:
+    """How many of ``estimates`` say their readings disagree beyond their noise
+    (:func:`~tendonsense.problem.misfit_notes`)."""
+    return sum(MISFIT in e.note for e in estimates)
+
+
+def misfit_rows(n: int, rows: int) -> str:
+    """A log's note that ``n`` of its ``rows`` rows disagree beyond their noise, or ''."""
+    return (f"{n} of {rows} rows: {MISFIT} (their note column says by how "
             f"much; is a tendon swapped or mislabelled, a force's X or direction wrong, a load "
             f"not given?)") if n else ""
 
@@ -234,7 +238,7 @@ def estimate_file(robot: Robot, log: str | Path, out: str | Path, unknowns: Sequ
                       sum(r.converged for r in results), len(bad),
                       skipped_rows=tuple(bad[:SKIPPED_SHOWN]),
                       note=joined("" if located(unknowns) else released_at_start(
-                          samples, robot, noise.tension), misfit_rows(results)))
+                          samples, robot, noise.tension), misfit_rows(disagreeing(results), len(results))))
 
 
 def online_estimator(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],

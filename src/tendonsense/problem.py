@@ -314,9 +314,18 @@ def misfit_notes(Jz, JT, misfit, tensions, noise: Noise) -> list[str]:
     (N, n_m, n_T): the measured lengths' sensitivities to the magnitudes and to the
     ``tensions`` (N, n_T), the length noise and the relative tension noise through ``JT``,
     on the left null space of ``Jz``: what the magnitudes cannot absorb), over as many
-    degrees of freedom as that space has, above its :data:`MISFIT_QUANTILE` quantile."""
+    degrees of freedom as that space has, above its :data:`MISFIT_QUANTILE` quantile. A row
+    with a value that is not finite (no solution) has none."""
     from scipy.special import chdtri
     Jz, JT, e, T = (np.asarray(a, float) for a in (Jz, JT, misfit, tensions))
+    finite = (np.isfinite(Jz).all(axis=(1, 2)) & np.isfinite(JT).all(axis=(1, 2))
+              & np.isfinite(e).all(axis=1) & np.isfinite(T).all(axis=1))
+    notes = [""] * len(e)
+    if not finite.all():
+        for k, note in zip(np.flatnonzero(finite), misfit_notes(
+                Jz[finite], JT[finite], e[finite], T[finite], noise) if finite.any() else []):
+            notes[k] = note
+        return notes
     m = e.shape[-1]
     # the misfit's part the magnitudes cannot absorb: on the columns of U past Jz's rank
     U, s, _ = np.linalg.svd(Jz)
@@ -334,7 +343,6 @@ def misfit_notes(Jz, JT, misfit, tensions, noise: Noise) -> list[str]:
     with np.errstate(invalid="ignore"):
         over = (dof >= 1) & (chi2 > chdtri(np.maximum(dof, 1), 1 - MISFIT_QUANTILE))
     rms = np.sqrt(np.mean(e**2, axis=-1))
-    notes = [""] * len(e)
     for k in np.flatnonzero(over):
         notes[k] = (f"{MISFIT}: the measured lengths are met "
                     f"to {rms[k] * 1e3:.3g} mm RMS, {np.sqrt(chi2[k] / dof[k]):.2g} times what "

@@ -158,7 +158,7 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
             over = prob.overloaded(tr.x[:len(run)], varied["young_modulus"][run]
                                    if "young_modulus" in varied else None)
             misfit = [""] * len(run) if len(meas) == prob.n_z else misfit_notes(
-                tr.Jz[:len(run)], tr.JT[:len(run)],
+                tr.Jz[:len(run)], tr.JT[:len(run)],  # (a failed row's are not finite: none)
                 tr.lengths[:len(run)][:, meas] - Y[run][:, meas], T[run][:, list(tcols)], noise)
             solved_x = None  # the last solution of the equations (the next scan starts there)
             for j, k in enumerate(run):
