@@ -185,7 +185,8 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
                                                jnp.arange(sel.size)].set(-sc.root_k)
         Rm = jnp.concatenate([Ry, st["rT"][:, tcols]], axis=1)
         return finish(carry, d, values, x, ok, fine, st["H"], -st["H"] @ Rm, st["evals"],
-                      st["jacs"], jnp.zeros((sel.size, n_z)), jnp.zeros((sel.size, tcols.size)))
+                      st["jacs"], jnp.zeros((sel.size, n_z)),
+                      jnp.zeros((sel.size, tcols.size)))
 
     def finish(carry, d, values, x, ok, fine, H, dx_dm, evals, jacs, Jz, JT):
         grid, g = poses(values, x[:nq], points_at(structure, values, values.marker_X))

@@ -238,7 +238,8 @@ def estimate_file(robot: Robot, log: str | Path, out: str | Path, unknowns: Sequ
                       sum(r.converged for r in results), len(bad),
                       skipped_rows=tuple(bad[:SKIPPED_SHOWN]),
                       note=joined("" if located(unknowns) else released_at_start(
-                          samples, robot, noise.tension), misfit_rows(disagreeing(results), len(results))))
+                          samples, robot, noise.tension),
+                          misfit_rows(disagreeing(results), len(results))))
 
 
 def online_estimator(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],
