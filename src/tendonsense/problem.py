@@ -318,14 +318,10 @@ def misfit_notes(Jz, JT, misfit, tensions, noise: Noise) -> list[str]:
     with a value that is not finite (no solution) has none."""
     from scipy.special import chdtri
     Jz, JT, e, T = (np.asarray(a, float) for a in (Jz, JT, misfit, tensions))
-    finite = (np.isfinite(Jz).all(axis=(1, 2)) & np.isfinite(JT).all(axis=(1, 2))
-              & np.isfinite(e).all(axis=1) & np.isfinite(T).all(axis=1))
     notes = [""] * len(e)
-    if not finite.all():
-        for k, note in zip(np.flatnonzero(finite), misfit_notes(
-                Jz[finite], JT[finite], e[finite], T[finite], noise) if finite.any() else []):
-            notes[k] = note
-        return notes
+    rows = np.flatnonzero(np.isfinite(Jz).all(axis=(1, 2)) & np.isfinite(JT).all(axis=(1, 2))
+                          & np.isfinite(e).all(axis=1) & np.isfinite(T).all(axis=1))
+    Jz, JT, e, T = Jz[rows], JT[rows], e[rows], T[rows]
     m = e.shape[-1]
     # the misfit's part the magnitudes cannot absorb: on the columns of U past Jz's rank
     U, s, _ = np.linalg.svd(Jz)
@@ -344,11 +340,11 @@ def misfit_notes(Jz, JT, misfit, tensions, noise: Noise) -> list[str]:
         over = (dof >= 1) & (chi2 > chdtri(np.maximum(dof, 1), 1 - MISFIT_QUANTILE))
     rms = np.sqrt(np.mean(e**2, axis=-1))
     for k in np.flatnonzero(over):
-        notes[k] = (f"{MISFIT}: the measured lengths are met "
-                    f"to {rms[k] * 1e3:.3g} mm RMS, {np.sqrt(chi2[k] / dof[k]):.2g} times what "
-                    f"the length and tension noise explain (is a tendon swapped or "
-                    f"mislabelled, a force's X or direction wrong, a load not given?); the ± "
-                    f"assumes the noise alone")
+        notes[rows[k]] = (
+            f"{MISFIT}: the measured lengths are met to {rms[k] * 1e3:.3g} mm RMS, "
+            f"{np.sqrt(chi2[k] / dof[k]):.2g} times what the length and tension noise explain "
+            f"(is a tendon swapped or mislabelled, a force's X or direction wrong, a load not "
+            f"given?); the ± assumes the noise alone")
     return notes
 
 

@@ -24,9 +24,9 @@ def cache_dir() -> Path | None:
 CACHE_LIMIT = 2 * 1024**3
 
 #: the most the kept programs may take, in bytes, in this process (None: the default of
-#: :func:`cache_limit_bytes`): when a new one would take them over it, the least recently used go (programs of
-#: other versions of this package or of robots not run for a while; a program loaded again
-#: counts as used). A robot's programs take some 10-40 MB.
+#: :func:`cache_limit_bytes`): when a new one would take them over it, the least recently
+#: used go (programs of other versions of this package or of robots not run for a while; a
+#: program loaded again counts as used). A robot's programs take some 10-40 MB.
 cache_limit: int | None = None
 
 
@@ -57,6 +57,7 @@ def _say_once(message: str) -> None:
     if message not in _SAID:
         _SAID.add(message)
         print(message, file=sys.stderr)
+
 
 #: called once, with a message, when this process first compiles a program where no kept
 #: one could be loaded (:mod:`tendonsense.compiled`): the command line prints it on a terminal,
