@@ -15,6 +15,7 @@ import pytest
 from conftest import ROOT, write_columns
 from tendonsense.estimation import PointForceUnknown, estimate, problem
 from tendonsense.filtering import MotionFilter
+from tendonsense.inputs import NoDampingWarning
 from tendonsense.forward import solve
 from tendonsense.inputs import Noise
 from tendonsense.online import OnlineEstimator
@@ -201,7 +202,8 @@ def test_without_damping_the_fixed_point_is_the_static_estimate():
     robot = load_robot(ROOT / "examples" / "paper_prototype.toml")
     d, T = {"t1": -0.004}, {"t1": 2.5, "t2": 0.0, "t3": 0.0}
     static = estimate(robot, d, T, [PointForceUnknown(X, (0, 0, -1))])
-    f = MotionFilter(problem(robot, ["t1"], [PointForceUnknown(X, (0, 0, -1))]))
+    with pytest.warns(NoDampingWarning, match="filters the quasi-static model"):
+        f = MotionFilter(problem(robot, ["t1"], [PointForceUnknown(X, (0, 0, -1))]))
     out = [f.update(d, T, 0.01 * k) for k in range(200)]
     assert out[-1].converged
     np.testing.assert_allclose(out[-1].magnitudes, static.magnitudes, rtol=1e-8)

@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -473,6 +474,9 @@ def test_a_header_only_log_is_an_error(tmp_path):
     # a value its option's type refuses is a bad value (1), as one refused later is (it was 2)
     (("solve", PROTOTYPE, "--tension", "t1=2,0"), 1, "--tension: t1: not a number: '2,0'"),
     (("sensitivity", "--points", "nine"), 1, "--points: invalid int value: 'nine'"),
+    (("sensitivity", "--points", "0"), 1, "--points 0: at least 1"),  # (it was 2)
+    (("sweep", PROTOTYPE, ROOT / "examples" / "sweep_sets.csv", "-o", "o.png"), 1,
+     "-o/--results o.png: writes a CSV table, not a figure"),  # (it wrote the CSV there)
     (("solve", PROTOTYPE, "--tension", "t1=2", "--tensoin", "t2=1"), 2,
      "unrecognized arguments: --tensoin t2=1"),
     (("solve", PROTOTYPE, "--tension", "t1=204"), 1, "tensions are in newtons"),  # gF
@@ -838,8 +842,35 @@ def test_many_logs_in_motion_on_a_robot_without_damping_say_so(tmp_path):
     (tmp_path / "out").mkdir()
     p = cli("estimate", PROTOTYPE, "--readings", tmp_path / "*.csv", "--unknown",
             "0.25,0,0,-1", "--dynamic", "-o", f"{tmp_path / 'out'}/")
-    assert "has no [rod] damping: --dynamic filters the quasi-static model" in p.stderr
+    assert p.stderr.count("has no [rod] damping: --dynamic filters the quasi-static model") == 1
+    assert "NoDampingWarning" not in p.stderr  # the library's warning: said once, above
     assert p.returncode == 1 and p.stderr.count("rows 10 s apart") == 2, p.stderr
+
+
+def test_estimation_in_motion_on_a_robot_without_damping_warns_in_python(prototype, tmp_path):
+    """The command line notes that --dynamic on a robot without damping filters the
+    quasi-static model; the Python API said nothing: the estimator in motion warns
+    (:class:`~tendonsense.inputs.NoDampingWarning`), many logs once, a damped robot not."""
+    from tendonsense.distributed import estimate_logs
+    tip = [PointForceUnknown(0.25, (0, 0, -1))]
+    with pytest.warns(inputs.NoDampingWarning, match="no \\[rod\\] damping"):
+        OnlineEstimator(problem(prototype, ["t1"], tip), dynamic=True)
+    damped = load_robot(ROOT / "examples" / "paper_prototype_damped.toml")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", inputs.NoDampingWarning)
+        OnlineEstimator(problem(damped, ["t1"], tip), dynamic=True)
+        OnlineEstimator(problem(prototype, ["t1"], tip))  # at rest: no damping needed
+    logs = []
+    for name in ("a", "b"):
+        logs.append(tmp_path / f"{name}.csv")
+        logs[-1].write_text("time,tension_t1,tension_t2,tension_t3,displacement_t1\n"
+                            + "".join(f"{0.01 * k},2,0,0,-0.003\n" for k in range(3)))
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        (tmp_path / "out").mkdir()
+        summaries = estimate_logs(None, prototype, logs, tmp_path / "out", tip, dynamic=True)
+    assert [s.error for s in summaries] == [None, None]
+    assert [w.category for w in said] == [inputs.NoDampingWarning], [str(w.message) for w in said]
 
 
 def test_a_column_twice_is_named_and_a_schedule_has_a_value_per_time(prototype, tmp_path):
@@ -1214,7 +1245,9 @@ def test_only_a_tendon_under_tension_is_stuck_on_every_path(prototype, tmp_path)
     with pytest.raises(ValueError, match="t2 is slack"):
         estimate(prototype, {"t1": -0.005}, {"t1": 2.0}, [TIP], sliding={"t2": "stuck"})
     for dynamic in (False, True):
-        online = OnlineEstimator(problem(prototype, ["t1"], [TIP]), dynamic=dynamic)
+        with warnings.catch_warnings():  # (no damping: the filter's quasi-static model)
+            warnings.simplefilter("ignore", inputs.NoDampingWarning)
+            online = OnlineEstimator(problem(prototype, ["t1"], [TIP]), dynamic=dynamic)
         got = online.update({"t1": -0.005}, {"t1": 2.0}, 0.0, {"t2": "stuck"})
         assert not got.converged and "t2 is slack" in got.note
     rows = (ROOT / "examples" / "tutorial" / "readings.csv").read_text().splitlines()
@@ -1580,6 +1613,24 @@ def test_a_log_not_separated_by_commas_is_named(tmp_path, sep, words):
     code, err, jax_loaded = refused_before_jax("estimate", PROTOTYPE, "--readings", log,
                                                "--unknown", "0.25,0,0,-1")
     assert code == 1 and "columns are separated by commas, " + words in err and not jax_loaded
+
+
+@pytest.mark.parametrize("command, flag, header", [
+    ("identify", "--snapshots", "tension_t1;tension_t2;tension_t3;marker_tip_x;marker_tip_y;"
+                                "marker_tip_z"),
+    ("sweep", None, "tension_t1;young_modulus"),
+    ("simulate", "--tensions", "time;tension_t1")])
+def test_every_table_not_separated_by_commas_is_named(tmp_path, command, flag, header):
+    """A snapshot file, a sweep's sets and a tension schedule written with semicolons get the
+    log's message naming the separator, before JAX (they were told of one unknown column)."""
+    table = tmp_path / "table.csv"
+    table.write_text(header + "\n" + ";".join(["1"] * header.count(";")) + ";2\n")
+    args = [command, PROTOTYPE, *([flag] if flag else []), table, "-o", tmp_path / "out.csv"]
+    if command == "simulate":
+        args += ["--duration", "1"]
+    code, err, jax_loaded = refused_before_jax(*args)
+    assert code == 1 and "columns are separated by commas, this one by ';'" in err, err
+    assert not jax_loaded
 
 
 def test_a_frictionless_tendon_cannot_be_stuck(tmp_path):

@@ -33,6 +33,24 @@ def figure(solved, prototype):
     plt.close(fig)
 
 
+def test_shape_figures_kept_by_nobody_are_freed(solved, prototype, tmp_path):
+    """``shape_figure`` made its figure with pyplot, which held every one until ``plt.close``:
+    a notebook or a sweep that drew 200 grew by 3.9 MB each. Its figures are now its own:
+    none is left with pyplot and one no longer referenced is freed; it still draws and
+    saves."""
+    import gc
+    import weakref
+    before = plt.get_fignums()
+    fig = plotting.shape_figure(solved, prototype, forces=[TIP])
+    assert plt.get_fignums() == before
+    fig.savefig(tmp_path / "shape.png")
+    assert (tmp_path / "shape.png").stat().st_size > 10_000
+    gone = weakref.ref(fig)
+    del fig
+    gc.collect()
+    assert gone() is None
+
+
 def views(fig):
     return fig.axes[:2]
 

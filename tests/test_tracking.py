@@ -248,3 +248,21 @@ def test_a_series_goes_on_after_failed_samples(log):
     assert all(e.converged for e in without)
     np.testing.assert_allclose([with_slips[k].magnitudes[0] for k in good],
                                [e.magnitudes[0] for e in without], rtol=1e-6)
+
+
+def test_one_program_whichever_tendons_are_pulled(log, prototype, monkeypatch):
+    """A batch or a log keyed its compiled scan by which tendons had a tension: the same
+    robot's batch with t2 at 0.3 N compiled a second program (14–19 s) where t2 at 0 had
+    one. Every tendon's tension is now a column of the scan: one key for both."""
+    import tendonsense.tracking as tracking
+    from tendonsense.tracking import solve_batch
+    keys, real = [], tracking.tracker
+    monkeypatch.setattr(tracking, "tracker", lambda *a, **k: keys.append(a) or real(*a, **k))
+    slack = solve_batch(prototype, {"t1": [2.0, 2.1]})
+    pulled = solve_batch(prototype, {"t1": [2.0, 2.1], "t2": [0.0, 0.3]})
+    assert slack.converged.all() and pulled.converged.all()
+    assert pulled.markers["tip"][0] == pytest.approx(slack.markers["tip"][0], abs=1e-12)
+    prob, _, y, T = log
+    estimate_series(prob, y[:3], T[:3])
+    estimate_series(prob, y[:3], [dict(t, t2=0.3) for t in T[:3]])
+    assert len(keys) == 4 and keys[0] == keys[1] and keys[2] == keys[3], keys

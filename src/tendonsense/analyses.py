@@ -36,6 +36,12 @@ class Errors:
     friction: float = 0.15
 
 
+def _axes(robot: Robot) -> np.ndarray:
+    """The base frame's axes (columns, global): the analyses' forces are in it (x along the
+    rod at its base; for the paper's prototype the global axes, z vertical)."""
+    return np.asarray(robot.base_rotation, float)
+
+
 def _values_with_friction(prob, factors) -> Values:
     v = prob.model.values
     return v._replace(friction=v.friction * jnp.asarray(factors, float))
@@ -44,27 +50,30 @@ def _values_with_friction(prob, factors) -> Values:
 def sensitivity_single(robot: Robot, tendon: str = "t1", forces_gf=(-25.0, -75.0, -125.0),
                        y_range=(-0.02, 0.0), n_y: int = 9, errors: Errors = Errors(),
                        progress=None) -> list[dict]:
-    """Fig. 3a: a vertical tip force estimated from one tendon, the estimate under ±length,
-    ±tension and ±friction errors. One row per (force, y)."""
+    """Fig. 3a: a tip force along the base frame's z (:func:`_axes`; vertical on the paper's
+    prototype) estimated from one tendon, the estimate under ±length, ±tension and ±friction
+    errors. One row per (force, y); a row whose truth or estimate did not converge has no
+    estimates, its ``note`` says why."""
     L = robot.rod.length
-    prob = problem(robot, [tendon], [PointForceUnknown(L, (0.0, 0.0, 1.0))])
+    up = _axes(robot)[:, 2]
+    prob = problem(robot, [tendon], [PointForceUnknown(L, tuple(up))])
     j = robot.tendon_names.index(tendon)
     rows = []
     grid = list(itertools.product(forces_gf, np.linspace(*y_range, n_y)))
     for k, (f_gf, y) in enumerate(grid):
         F = f_gf * GF
-        truth = forward_kinematics(robot, {tendon: y}, point_forces=[(L, (0.0, 0.0, F))])
+        truth = forward_kinematics(robot, {tendon: y}, point_forces=[(L, tuple(F * up))])
         T = truth.tensions[tendon]
         row = {"force_gF": f_gf, "force_N": F, "displacement_m": float(y), "tension_N": T,
-               "truth_converged": truth.converged}
+               "truth_converged": bool(truth.converged)}
         if not truth.converged or T <= 0:
-            row["note"] = ("slack or unsolved" if truth.converged or T < 0 else
-                           "forward problem failed")
+            row["note"] = ("slack" if truth.converged else "forward problem failed: " + (
+                truth.extra.get("note") or "not converged"))
             rows.append(row)
             continue
         nominal = estimate_problem(prob, {tendon: y}, {tendon: T})
         if not nominal.converged:
-            row["note"] = "estimate failed"
+            row["note"] = "estimate failed: " + (nominal.extra.get("note") or "not converged")
             rows.append(row)
             continue
         row["estimate_N"] = float(nominal.magnitudes[0])
@@ -116,22 +125,31 @@ def sensitivity_3d(robot: Robot, forces_gf=None, tensions=1.5,
                    errors: Errors = Errors(), progress=None) -> list[dict]:
     """Fig. 3b: 3-D tip forces from every tendon (three in the paper), each at ``tensions``
     (N: one for all, or one per tendon); per force and error source, the 3^n estimates from
-    every per-tendon error sign (−, 0, +) of amplitude error / n_tendons."""
+    every per-tendon error sign (−, 0, +) of amplitude error / n_tendons. Forces and
+    estimates are in the base frame (:func:`_axes`); a force whose truth or estimate did not
+    converge has no errors (NaN, and the summary leaves it out)."""
     forces_gf = default_3d_forces_gf() if forces_gf is None else forces_gf
     L = robot.rod.length
     names = robot.tendon_names
     n = len(names)
-    prob = problem(robot, names, [PointForceUnknown(L, tuple(e)) for e in np.eye(3)])
+    axes = _axes(robot)
+    prob = problem(robot, names, [PointForceUnknown(L, tuple(e)) for e in axes.T])
     T = _per_tendon(names, tensions)
     out = []
     for k, f_gf in enumerate(forces_gf):
         F = np.asarray(f_gf) * GF
-        truth = solve(robot, T, [(L, tuple(F))])
+        truth = solve(robot, T, [(L, tuple(axes @ F))])
         y = truth.displacements
         nominal = estimate_problem(prob, y, T)
         entry = {"force_gF": np.asarray(f_gf, float).tolist(), "force_N": F.tolist(),
                  "estimate_N": nominal.magnitudes.tolist(),
                  "converged": bool(truth.converged and nominal.converged)}
+        if not entry["converged"]:  # no solution: no errors to draw from it
+            for source in ("length", "tension", "friction"):
+                entry[source] = {"estimates_N": [], "mean_relative_error": float("nan"),
+                                 "max_relative_error": float("nan")}
+            out.append(entry)
+            continue
         for source in ("length", "tension", "friction"):
             amp = getattr(errors, source) / n
             estimates = []
@@ -160,10 +178,11 @@ def sensitivity_3d(robot: Robot, forces_gf=None, tensions=1.5,
 
 def summary_3d(entries: list[dict]) -> dict:
     out = {}
-    for source in ("length", "tension", "friction"):
+    for source in ("length", "tension", "friction"):  # over the forces solved
         means = [e[source]["mean_relative_error"] for e in entries]
-        out[source] = {"mean": float(np.mean(means)), "min_over_forces": float(np.min(means)),
-                       "max_over_forces": float(np.max(means)),
+        out[source] = {"mean": float(np.nanmean(means)),
+                       "min_over_forces": float(np.nanmin(means)),
+                       "max_over_forces": float(np.nanmax(means)),
                        "paper_range": list(PAPER_3D[source])}
     return out
 
@@ -171,19 +190,20 @@ def summary_3d(entries: list[dict]) -> dict:
 def resolution(robot: Robot, forces_gf=None, tensions=1.5,
                tension_resolution: float = 0.025 / 3, progress=None) -> list[dict]:
     """§IV resolution: at fixed tendon lengths, every tendon at ``tensions`` (N: one for
-    all, or one per tendon), the smallest increment of each tip-force component that changes
-    at least one tension by the sensor resolution (first order,
+    all, or one per tendon), the smallest increment of each tip-force component (in the base
+    frame, :func:`_axes`) that changes at least one tension by the sensor resolution (first order,
     ``dT/dF = −(∂y/∂T)⁻¹ ∂y/∂F`` with the equilibrium eliminated)."""
     forces_gf = default_3d_forces_gf() if forces_gf is None else forces_gf
     L = robot.rod.length
     names = robot.tendon_names
-    prob = problem(robot, names, [PointForceUnknown(L, tuple(e)) for e in np.eye(3)])
+    axes = _axes(robot)
+    prob = problem(robot, names, [PointForceUnknown(L, tuple(e)) for e in axes.T])
     T = _per_tendon(names, tensions)
     tensions = np.array(list(T.values()))
     rows = []
     for k, f_gf in enumerate(forces_gf):
         F = np.asarray(f_gf) * GF
-        truth = solve(robot, T, [(L, tuple(F))])
+        truth = solve(robot, T, [(L, tuple(axes @ F))])
         est = estimate_problem(prob, truth.displacements, T)
         if not (truth.converged and est.converged):
             rows.append({"force_gF": np.asarray(f_gf, float).tolist(), "converged": False,

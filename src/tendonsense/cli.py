@@ -657,11 +657,18 @@ def _check(args, robot) -> None:
 
 
 def _file_kinds(args) -> None:
-    """A figure's suffix names a format matplotlib writes, a fitted robot's is .toml."""
+    """A figure's suffix names a format matplotlib writes, a table's is not a figure's, a
+    fitted robot's is .toml."""
     plot = getattr(args, "plot", None)
     if plot and (kind := Path(plot).suffix.lower()[1:]) and kind not in FIGURE_FORMATS:
         raise ValueError(f"--plot {plot}: .{kind} is not a figure format (one of "
                          f"{', '.join('.' + f for f in FIGURE_FORMATS)})")
+    for name, flag in (("results", "-o/--results"), ("estimates", "-o/--estimates"),
+                       ("log", "-o/--log")):
+        table = getattr(args, name, None)
+        if isinstance(table, str) and Path(table).suffix.lower()[1:] in FIGURE_FORMATS:
+            raise ValueError(f"{flag} {table}: writes a CSV table, not a figure (a figure is "
+                             f"--plot): name it *.csv")
     fitted = getattr(args, "fitted_robot", None)
     if fitted and Path(fitted).suffix.lower() != ".toml":
         raise ValueError(f"-o/--fitted-robot {fitted}: the fitted robot is a robot file, "
@@ -921,7 +928,7 @@ def _check_cluster(args):
         raise UsageError(f"tendonsense {args.command}: --workers (a local cluster) or "
                          f"--scheduler (a running one), not both")
     if args.workers is not None and args.workers < 1:
-        raise UsageError(f"tendonsense {args.command}: --workers {args.workers}: needs at "
+        raise ValueError(f"tendonsense {args.command}: --workers {args.workers}: needs at "
                          f"least one worker process")
     if (args.workers is not None or args.scheduler is not None) and \
             importlib.util.find_spec("distributed") is None:
@@ -1038,7 +1045,7 @@ def _check_analysis(args, robot):
         raise ValueError(f"{args.robot}: {args.command} estimates a 3-D tip force, which "
                          f"takes at least 3 tendons; the robot has {len(robot.tendons)}")
     if args.command == "sensitivity" and args.points < 1:
-        raise UsageError(f"tendonsense sensitivity: --points {args.points}: at least 1")
+        raise ValueError(f"tendonsense sensitivity: --points {args.points}: at least 1")
     out = Path(args.out_dir)
     if out.exists() and not out.is_dir():
         raise ValueError(f"-o/--out-dir {args.out_dir}: not a folder")
@@ -1081,7 +1088,9 @@ def _analysis_run(args, robot):
         rows = analyses.sensitivity_single(robot, n_y=args.points, progress=prog)
         entries = analyses.sensitivity_3d(robot, progress=prog)
         summary = {"single_tendon": analyses.single_summary(rows),
-                   "three_tendons": analyses.summary_3d(entries)}
+                   "three_tendons": analyses.summary_3d(entries),
+                   "left_out": {"single_tendon": sum("estimate_N" not in r for r in rows),
+                                "three_tendons": sum(not e["converged"] for e in entries)}}
         keys = sorted({k for r in rows for k in r})
         folder()
         table_, json_, png_, png_3d = (out / name for name in ANALYSIS_FILES["sensitivity"])
@@ -1150,6 +1159,9 @@ def _summary_text(command: str, summary: dict) -> str:
         for src, v in summary["single_tendon"].items():
             lines.append(f"  {src} error: mean {pct(v['mean'])}, max {pct(v['max'])} "
                          f"(paper: mean {pct(v['paper_mean'])}, max {pct(v['paper_max'])})")
+        if n := summary.get("left_out", {}).get("single_tendon"):
+            lines.append(f"  ({n} cases left out: slack, or not solved; their notes are in "
+                         f"the table)")
         lines.append("three tendons: mean relative error of the estimated 3-D tip force "
                      "(over the applied forces)")
         for src, v in summary["three_tendons"].items():
@@ -1606,7 +1618,8 @@ def _identify(args, robot) -> bool:
         fit = identify(robot, args.snapshots_read, args.param or inputs.DEFAULT_PARAMETERS,
                        progress=prog, marker_noise=args.marker_noise,
                        length_noise=args.length_noise, crossval=args.crossval)
-        source = f"{args.snapshots} ({len(args.snapshots_read)} snapshots)"
+        n = len(args.snapshots_read)
+        source = f"{args.snapshots} ({n} snapshot{'s' if n != 1 else ''})"
     prog.close()
     written = []
     if fit.converged:
@@ -1777,6 +1790,12 @@ RUN = {"solve": _single, "fk": _single, "view": _view, "identify": _identify,
 
 
 def main(argv=None) -> int:
+    with warnings.catch_warnings():  # (said before computing: :func:`_no_damping`)
+        warnings.simplefilter("ignore", inputs.NoDampingWarning)
+        return _main(argv)
+
+
+def _main(argv) -> int:
     argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
     parser = build_parser()
     hook = settings.on_first_compile

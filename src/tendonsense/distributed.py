@@ -20,14 +20,15 @@ from __future__ import annotations
 import os
 import sys
 import threading
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from .inputs import (WALK, Noise, Unknown, check_noise, check_point_forces, check_unknowns,
-                     tendon_vector)
+from .inputs import (WALK, NoDampingWarning, Noise, Unknown, check_noise, check_point_forces,
+                     check_unknowns, tendon_vector)
 from .readings import LogSummary, log_outputs
 from .result import SampleEstimate
 from .robot import Robot
@@ -291,7 +292,9 @@ def _estimate_file(*task) -> LogSummary:
     """One task of :func:`estimate_logs`: :func:`tendonsense.logs.estimate_file`, imported
     on the worker."""
     from .logs import estimate_file
-    return estimate_file(*task)
+    with warnings.catch_warnings():  # (said once by :func:`estimate_logs`)
+        warnings.simplefilter("ignore", NoDampingWarning)
+        return estimate_file(*task)
 
 
 def estimate_logs(client, robot: Robot, logs: Sequence[str | Path], out_dir: str | Path,
@@ -325,6 +328,9 @@ def estimate_logs(client, robot: Robot, logs: Sequence[str | Path], out_dir: str
     if not os.access(out_dir, os.W_OK):
         raise ValueError(f"{out_dir}: the folder is not writable")
     outs = log_outputs(logs, out_dir)
+    if dynamic and robot.rod.damping <= 0:
+        warnings.warn("the robot has no [rod] damping: estimation in motion filters the "
+                      "quasi-static model in every log", NoDampingWarning, stacklevel=2)
     tasks = [(robot, str(log), str(out), list(unknowns), list(point_forces), noise, dynamic,
               walk) for log, out in zip(logs, outs)]
     return [LogSummary(str(log), str(out), error=f"{log}: {r}") if isinstance(r, Exception)

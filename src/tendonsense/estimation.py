@@ -312,8 +312,8 @@ def _locate(prob: Problem, drive: Drive, values: Values, T, noise: Noise, budget
     stacked = jax.tree_util.tree_map(lambda *a: np.stack([np.asarray(v, float) for v in a]),
                                      *drives)
     first, converged, *_ = _solve(prob.at(grid[0]).fixed(), drives[0], values, None, budget)
-    tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.asarray(T) != 0))))
-    track = tracker(model.structure, prob.measured, fixed.n_z, tcols, step_tol=PROFILE_STEP)
+    track = tracker(model.structure, prob.measured, fixed.n_z, tuple(range(model.n_tendons)),
+                    step_tol=PROFILE_STEP)
     tr = jax.device_get(track(np.asarray(first, float), stacked, fixed.unknowns, values, {}))
     sel = list(prob.measured)
     misfit = np.where(tr.converged, np.sqrt(np.mean(

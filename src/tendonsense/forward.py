@@ -16,7 +16,7 @@ from . import inputs, tendons
 from .inputs import PointForce, check_point_forces, finite, tendon_vector  # noqa: F401 (API)
 from .compiled import Program
 from .kinematics import poses
-from .model import Model
+from .model import Model, material_values
 from .result import Result
 from .robot import Robot, check_robot
 from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, derivatives, marker_positions,
@@ -29,11 +29,21 @@ TENSION_TOL = 1e-9
 INADMISSIBLE = "strain outside the model's range (a fibre compressed to nothing)"
 
 
-@lru_cache(maxsize=64)
 def model_for(robot: Robot) -> Model:
     """The discretised model of ``robot`` (cached; models of robots that differ only in
-    their numbers share every compiled program)."""
-    return Model.build(check_robot(robot))
+    their numbers share every compiled program, and those that differ only in their
+    material values, :data:`~tendonsense.model.VALUE_NAMES` — e.g. each of
+    :meth:`Robot.with_parameters <tendonsense.robot.Robot.with_parameters>` — share one
+    build of the geometry)."""
+    built = _built(check_robot(robot).geometry)
+    return Model(robot, built.structure, built.values._replace(**material_values(robot)))
+
+
+@lru_cache(maxsize=64)
+def _built(geometry: Robot) -> Model:
+    """:meth:`Model.build <tendonsense.model.Model.build>` of a :attr:`Robot.geometry
+    <tendonsense.robot.Robot.geometry>` (:func:`model_for` puts the robot's own values)."""
+    return Model.build(geometry)
 
 
 def why_not(res: NewtonResult, fine: bool, tolerance: float) -> str:

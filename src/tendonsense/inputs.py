@@ -60,9 +60,13 @@ def start(q0, nq: int, n_x: int | None = None) -> np.ndarray | None:
     return q
 
 
-@lru_cache(maxsize=64)
 def rest_lengths(robot: Robot) -> np.ndarray:
     """Every tendon's path length on the straight rod (l* of eq. 9), m (read-only)."""
+    return _rest_lengths(robot.geometry)
+
+
+@lru_cache(maxsize=64)
+def _rest_lengths(robot: Robot) -> np.ndarray:
     L = robot.rod.length
     out = np.zeros(len(robot.tendons))
     for j, t in enumerate(robot.tendons):
@@ -86,9 +90,13 @@ def thinnest_area(robot: Robot, X: float) -> float:
     return float(rod.area(np.append(knots[knots <= X], X)).min())
 
 
-@lru_cache(maxsize=64)
 def thinnest_sections(robot: Robot) -> dict[str, float]:
     """:func:`thinnest_area` up to each tendon's anchor, by tendon name."""
+    return _thinnest_sections(robot.geometry)
+
+
+@lru_cache(maxsize=64)
+def _thinnest_sections(robot: Robot) -> dict[str, float]:
     return {t.name: thinnest_area(robot, t.disks[-1]) for t in robot.tendons}
 
 
@@ -369,10 +377,9 @@ def _sequence(items, what: str, example: str) -> list:
     return list(items)
 
 
-def check_point_forces(robot: Robot, point_forces: Sequence[PointForce], young_modulus=None):
-    """Validated ``(X (n,), forces (n, 3))`` of known point forces (:func:`force_error`;
-    ``young_modulus`` as for :func:`tension_error`)."""
-    Xs, Fs = [], []
+def force_pairs(point_forces) -> list:
+    """``point_forces`` as a list of pairs ``(X, f)``, or a ValueError naming the first item
+    that is not one (a single pair, a flat ``(X, fx, fy, fz)``)."""
     point_forces = _sequence(point_forces, "point forces", "[(X, (fx, fy, fz))]")
     if len(point_forces) == 2 and isinstance(point_forces[0], (int, float, np.number)):
         raise ValueError("point forces: a list of pairs such as [(X, (fx, fy, fz))], not one "
@@ -380,7 +387,14 @@ def check_point_forces(robot: Robot, point_forces: Sequence[PointForce], young_m
     for i, load in enumerate(point_forces):
         if isinstance(load, (str, bytes)) or not hasattr(load, "__len__") or len(load) != 2:
             raise ValueError(f"point force {i + 1}: a pair (X, (fx, fy, fz)), got {load!r}")
-        X, f = load
+    return point_forces
+
+
+def check_point_forces(robot: Robot, point_forces: Sequence[PointForce], young_modulus=None):
+    """Validated ``(X (n,), forces (n, 3))`` of known point forces (:func:`force_error`;
+    ``young_modulus`` as for :func:`tension_error`)."""
+    Xs, Fs = [], []
+    for i, (X, f) in enumerate(force_pairs(point_forces)):
         X = finite(f"point force {i + 1} X", X)
         if not 0.0 <= X <= robot.rod.length:
             raise ValueError(f"point force {i + 1}: X = {X:g} m is outside the rod "
@@ -597,6 +611,11 @@ STEP_PER_TAU = 0.2
 
 #: the integration step of a simulation by default, s
 MAX_STEP = 2e-3
+
+
+class NoDampingWarning(UserWarning):
+    """Estimation in motion on a robot without ``[rod] damping``: the filter's model is the
+    quasi-static one (each sample a step toward the equilibrium), not a moving rod's."""
 
 
 def coarse_step(robot, max_step: float) -> str | None:

@@ -226,11 +226,7 @@ class Model:
             mass_X=np.array([m.X for m in robot.masses], float),
             mass_offsets=np.array([m.offset for m in robot.masses], float).reshape(-1, 3),
             masses=np.array([m.mass for m in robot.masses], float),
-            base=base, young_modulus=np.float64(rod.young_modulus),
-            poisson_ratio=np.float64(rod.poisson_ratio), density=np.float64(rod.density),
-            damping=np.float64(rod.damping),
-            friction=np.array([t.friction for t in robot.tendons], float).reshape(-1),
-            energy_floor=np.float64(1e-6 * np.sqrt(r0**4 / L)))
+            base=base, **material_values(robot), energy_floor=np.float64(1e-6 * np.sqrt(r0**4 / L)))
         structure = Structure(tuple(robot.strain), tuple(groups), len(robot.tendons),
                               robot.numerics, len(bounds) - 1, continuous)
         return Model(robot, structure, values)
@@ -246,6 +242,15 @@ class Model:
         if "friction" in v:
             v["friction"] = np.broadcast_to(v["friction"], np.shape(self.values.friction))
         return Model(self.robot, self.structure, self.values._replace(**v))
+
+
+def material_values(robot: Robot) -> dict[str, np.ndarray]:
+    """The robot's values by name (:data:`VALUE_NAMES`), as :class:`Values` holds them."""
+    rod = robot.rod
+    return dict(young_modulus=np.float64(rod.young_modulus),
+                poisson_ratio=np.float64(rod.poisson_ratio), density=np.float64(rod.density),
+                damping=np.float64(rod.damping),
+                friction=np.array([t.friction for t in robot.tendons], float).reshape(-1))
 
 
 def points_at(structure: Structure, values: Values, X) -> PointSet:

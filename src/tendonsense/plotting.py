@@ -14,6 +14,7 @@ matplotlib.use("Agg")
 import jax.numpy as jnp  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
 from matplotlib.cm import ScalarMappable  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.colors import ListedColormap, Normalize  # noqa: E402
@@ -111,7 +112,10 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     ({tendon: 'in' | 'out' | 'stuck'}, default in) is how the result was solved: a tendon
     paid out grows toward its anchor, a stuck one is drawn at its band's middle (no friction:
     one tension, as :func:`~tendonsense.estimation.estimate` solves it). With ``failed`` (a
-    reason) or a result that did not converge, the views are stamped NOT CONVERGED."""
+    reason) or a result that did not converge, the views are stamped NOT CONVERGED.
+
+    The figure is not pyplot's (``plt.close`` is not needed: it is freed with the last
+    reference to it); a notebook shows it as a cell's value, ``fig.savefig`` writes it."""
     L = robot.rod.length
     loads = ([(X, np.asarray(f, float), newtons(float(np.linalg.norm(f))), KNOWN)
               for X, f in forces]
@@ -145,7 +149,10 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     lo, hi = _limits(_finite(np.concatenate(
         [rod, *(r for _, _, r, _ in tendons), _points(markers), _points(measured),
          _points([a - v for a, v, *_ in arrows])])))
-    fig = plt.figure()
+    # not pyplot's: a figure a notebook or a sweep keeps is freed with it (pyplot would hold
+    # every one until plt.close)
+    fig = Figure()
+    FigureCanvasAgg(fig)
     axes, cax = [fig.add_axes((0, 0, 1, 1)) for _ in VIEWS], fig.add_axes((0, 0, 1, 1))
     n_title = bool(title) + bool(given)
     tmax = max([T for _, T, _, along in tendons for T in (T, *along)], default=0.0)
@@ -491,7 +498,7 @@ def ellipsoids(entries, path):
         ax.scatter(*F, color="black", s=30, marker="o", label="applied" if k == 0 else None)
         pts.append(F[None])
         for s in SOURCES:
-            est = np.array(e[s]["estimates_N"]) / GF
+            est = np.array(e[s]["estimates_N"], float).reshape(-1, 3) / GF  # (none: [])
             est = est[np.all(np.isfinite(est), axis=1)]
             if len(est) < 4:
                 continue

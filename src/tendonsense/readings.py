@@ -125,6 +125,14 @@ class Columns:
     top: np.ndarray = field(default_factory=lambda: np.zeros(0))  # tendons' largest tensions, N
 
 
+def check_separator(source, header: Sequence[str], error: type[Exception]) -> None:
+    """A header read as one column that holds a semicolon, a tab or a bar (a spreadsheet's
+    other CSV) raises ``error`` saying so, not that the one long column is unknown."""
+    if len(header) == 1 and (sep := next((c for c in ";\t|" if c in header[0]), None)):
+        raise error(f"{source}: header: columns are separated by commas, this one by "
+                    f"{'tabs' if sep == chr(9) else repr(sep)} ({header[0].strip()[:40]!r}…)")
+
+
 def parse_header(header: Sequence[str], robot: Robot, source) -> Columns:
     """Check the header of READINGS.csv: ``time`` (optional), ``tension_<name>``,
     ``displacement_<name>``, optional ``marker_<name>_x/_y/_z``."""
@@ -132,9 +140,7 @@ def parse_header(header: Sequence[str], robot: Robot, source) -> Columns:
     if not utf8(header):
         raise ReadingsError(f"{source}: header: {NOT_UTF8}")
     tendons, markers = robot.tendon_names, robot.marker_names
-    if len(header) == 1 and (sep := next((c for c in ";\t|" if c in header[0]), None)):
-        raise ReadingsError(f"{source}: header: columns are separated by commas, this one by "
-                            f"{'tabs' if sep == chr(9) else repr(sep)} ({header[0][:40]!r}…)")
+    check_separator(source, header, ReadingsError)
     _once(source, header, ReadingsError)
     measured = []
     for col in header:
@@ -419,6 +425,7 @@ def read_snapshots(path: str | Path, robot: Robot, young_modulus: float | None =
     path = Path(path)
     raw = read_csv_rows(path, SnapshotError)
     header = raw[0] if raw else []
+    check_separator(path, header, SnapshotError)
     _once(path, header, SnapshotError)
     rows = [dict(zip(header, r + [""] * (len(header) - len(r))))
             for r in raw[1:] if any(c.strip() for c in r)]
@@ -691,7 +698,7 @@ LOAD_COLUMNS = ("load_X", "load_fx", "load_fy", "load_fz")
 @dataclass(frozen=True)
 class ParameterSets:
     """SETS.csv (:func:`read_parameter_sets`): one forward solve per row, as the arguments of
-    :func:`~tendonsense.tracking.solve_batch`, and the file's own cells to write back."""
+    :func:`~tendonsense.tracking.solve_batch`, and the file's own cells (trimmed) to write back."""
 
     header: list[str]
     rows: list[list[str]]
@@ -711,6 +718,7 @@ def read_parameter_sets(path: str | Path, robot: Robot) -> ParameterSets:
     path = Path(path)
     raw = read_csv_rows(path, ReadingsError)
     header = [h.strip() for h in raw[0]] if raw else []
+    check_separator(path, header, ReadingsError)
     rows = [r for r in raw[1:] if any(c.strip() for c in r)]
     if not rows:
         raise ReadingsError(f"{path}: no parameter sets (a header row, then one row per set)")
@@ -771,7 +779,7 @@ def read_parameter_sets(path: str | Path, robot: Robot) -> ParameterSets:
         values["friction"] = mu
     loads = ([(column["load_X"], np.stack([column[c] for c in LOAD_COLUMNS[1:]], axis=1))]
              if load else [])
-    return ParameterSets(header, [list(r) for r in rows], T, values, loads)
+    return ParameterSets(header, [[c.strip() for c in r] for r in rows], T, values, loads)
 
 
 def _load_of(values, columns) -> tuple[float, list[float]]:
@@ -821,6 +829,7 @@ def read_tension_schedule(path: str | Path,
         raise ReadingsError(f"{path}: empty file (expected a header with time and "
                             f"tension_<tendon> columns)")
     header = [h.strip() for h in rows[0]]
+    check_separator(path, header, ReadingsError)
     names = [h.removeprefix("tension_") for h in header if h.startswith("tension_")]
     for col in header:
         if col in DESCRIPTIVE or (col.startswith("tension_") and col[8:] in robot.tendon_names):

@@ -139,7 +139,17 @@ class Robot:
         return h
 
     def __getstate__(self) -> dict:  # a hash of str fields is per process: not sent on
-        return {k: v for k, v in self.__dict__.items() if k != "_hash"}
+        return {k: v for k, v in self.__dict__.items() if k not in ("_hash", "geometry")}
+
+    @cached_property
+    def geometry(self) -> "Robot":
+        """This robot with its material values (Young's modulus, Poisson's ratio, density,
+        damping, friction) at 0: what depends on its shape alone is keyed by it, so that
+        robots that differ only in those values (:meth:`with_parameters`) share it."""
+        return self.replace(
+            rod=dataclasses.replace(self.rod, young_modulus=0.0, poisson_ratio=0.0,
+                                    density=0.0, damping=0.0),
+            tendons=tuple(dataclasses.replace(t, friction=0.0) for t in self.tendons))
 
     @cached_property
     def tendon_names(self) -> tuple[str, ...]:

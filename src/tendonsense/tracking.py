@@ -16,8 +16,8 @@ from .estimation import estimate_problem
 from .fastpath import (MAX_EVALUATIONS, MAX_JACOBIANS, Carry, Track,  # noqa: F401 (API)
                        follower, stacked_drives, tracker)
 from .forward import model_for, sliding_values, why_not
-from .inputs import (Noise, check_noise, first_force_error, friction_signs, max_tension,
-                     tendon_vector, tension_error)
+from .inputs import (Noise, check_noise, first_force_error, force_pairs, friction_signs,
+                     max_tension, tendon_vector, tension_error)
 from .model import VALUE_NAMES
 from .online import RESCUE_BUDGET, OnlineEstimator
 from .problem import Problem, band, confounded, covariance, misfit_notes  # noqa: F401 (API)
@@ -108,7 +108,9 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
     out: list[SampleEstimate | None] = [None] * n
     for k, error in errors.items():
         out[k] = SampleEstimate.failed(prob, f"bad value: {error}")
-    tcols = tuple(sorted(set(prob.measured) | set(np.flatnonzero(np.any(T != 0, axis=0)))))
+    # every tendon's tension a column (a slack one's adds nothing to the band): one program
+    # whichever tendons a log pulls
+    tcols = tuple(range(len(robot.tendons)))
     if history is None:
         track = tracker(model.structure, prob.measured, prob.n_z, tcols, until_failure=True)
     else:
@@ -312,8 +314,7 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     varied = signed_friction(robot, base, varied, n, sliding)
     g = np.broadcast_to(np.asarray(robot.gravity, float), (n, 3))
     unknowns = Unknowns.none(n_t, X.shape[1])
-    tcols = tuple(int(j) for j in np.flatnonzero(np.any(T != 0, axis=0)))
-    track = tracker(structure, (), 0, tcols)
+    track = tracker(structure, (), 0, tuple(range(n_t)))  # (as series_chunks)
     features = np.concatenate([T, X, F.reshape(n, -1), *(v.reshape(n, -1)
                                                           for v in varied.values())], axis=1)
     runs = [r for r in np.array_split(principal_order(features), max(1, workers)) if r.size]
@@ -372,6 +373,7 @@ def batch_inputs(robot: Robot, base, tensions, point_forces, values):
     else:
         T = np.asarray(tensions, float).reshape(-1, len(names))
     n = T.shape[0]
+    point_forces = force_pairs(point_forces)
     X = np.stack([np.broadcast_to(np.asarray(x, float), (n,)) for x, _ in point_forces], axis=1) \
         if point_forces else np.zeros((n, 0))
     F = np.stack([np.broadcast_to(np.asarray(f, float), (n, 3)) for _, f in point_forces],
@@ -416,7 +418,8 @@ def varied_values(base, values, n: int) -> dict[str, np.ndarray]:
     for k, val in (values or {}).items():
         if k not in VALUE_NAMES:
             raise ValueError(f"{k}: not a value that can be varied (one of "
-                             f"{', '.join(VALUE_NAMES)})")
+                             f"{', '.join(VALUE_NAMES)}; each tendon's own μ: friction as "
+                             f"(N, n_tendons), a column per tendon in the robot's order)")
         a = np.asarray(val, float)
         if k == "friction" and a.ndim <= 1:  # one μ for every tendon
             a = a.reshape(-1, 1)
