@@ -226,7 +226,8 @@ class Model:
             mass_X=np.array([m.X for m in robot.masses], float),
             mass_offsets=np.array([m.offset for m in robot.masses], float).reshape(-1, 3),
             masses=np.array([m.mass for m in robot.masses], float),
-            base=base, **material_values(robot), energy_floor=np.float64(1e-6 * np.sqrt(r0**4 / L)))
+            base=base, **material_values(robot),
+            energy_floor=np.float64(1e-6 * np.sqrt(r0**4 / L)))
         structure = Structure(tuple(robot.strain), tuple(groups), len(robot.tendons),
                               robot.numerics, len(bounds) - 1, continuous)
         return Model(robot, structure, values)
