@@ -187,6 +187,25 @@ def test_calibration_errors_in_mm(monkeypatch, tmp_path):
     assert [p.get_height() for p in lengths.patches] == pytest.approx([0.02, 0.03])
 
 
+def test_a_calibrations_title_does_not_squash_its_panel(monkeypatch, tmp_path):
+    """A camera-free calibration of three parameters with a warning has a five-line title,
+    which took its height from the one panel below it (1.2 in of 2.8): the figure grows by
+    its title's lines instead."""
+    monkeypatch.setattr(plotting, "_save", lambda fig, path: fig)
+    fit = SimpleNamespace(snapshot_errors=[(None, 2e-5), (None, 3e-5)], crossval=None,
+                          parameters={"young_modulus": 1.0e6, "density": 1340.0,
+                                      "friction": 0.4},
+                          sigma={"young_modulus": 2e4, "density": 9.8, "friction": 0.0095},
+                          robot=SimpleNamespace(name="my-robot"), warning="far off",
+                          misfit=3.0, noise=(5e-4, 1e-4))
+    fig = plotting.calibration(fit, tmp_path / "c.png",
+                               "examples/tutorial/snapshots_tendons.csv (13 snapshots)")
+    (ax,) = fig.axes
+    height = fig.get_size_inches()[1] * ax.get_position().height
+    plt.close(fig)
+    assert ax.get_title().count("\n") >= 4 and height > 1.8, height
+
+
 @pytest.mark.parametrize("converged", [True, False])
 def test_location_profile_of_a_failed_estimate_is_stamped(monkeypatch, tmp_path, solved,
                                                            converged):

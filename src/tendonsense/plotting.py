@@ -559,7 +559,10 @@ def comparison(table: dict[str, list], path):
                  * 100 for g in groups]
         ax.bar(np.arange(len(groups)) + i * width, means, width, label=name,
                color="0.6" if name == "the paper's estimates" else None)
-    ax.set_xticks(np.arange(len(groups)) + width * (len(series) - 1) / 2, groups)
+    counts = [sum(r.case.rsplit("-", 1)[0] == g for r in rows) for g in groups]
+    ax.set_xticks(np.arange(len(groups)) + width * (len(series) - 1) / 2,
+                  [f"{g.replace('_', ' ')}\n({n} rows)" for g, n in zip(groups, counts)])
+    ax.set_xlabel("the paper's experiment (load case)")
     ax.set_ylabel("mean relative force error (%)")
     ax.set_title("Force error of each rod model on the paper's experiments")
     ax.legend()
@@ -613,7 +616,18 @@ def calibration(fit, path, source: str | None = None):
     parameters fitted."""
     kinds = [(col, kind) for col, kind in enumerate(("marker", "displacement"))
              if any(e[col] is not None for e in fit.snapshot_errors)]
-    fig, axes = plt.subplots(len(kinds), 1, figsize=(7, 2.8 * len(kinds)), squeeze=False)
+    fitted = ", ".join(
+        f"{k} = {v:.4g}" + ("" if fit.sigma.get(k) is None else f" ± {fit.sigma[k]:.2g}")
+        + parameter_words(k)[1] for k, v in fit.parameters.items())
+    what = "per-snapshot error" + (" and leave-one-out prediction" if fit.crossval else "")
+    if fit.warning:  # said on the figure too, not on standard error alone
+        what += "\nWARNING printed with the fit" + (
+            f": residuals {fit.misfit:.2g} × the noise assumed" if fit.misfit else "")
+    title = "\n".join([f"Calibration of {fit.robot.name}" + (f" from {source}" if source else ""),
+                       textwrap.fill(f"fitted {fitted} (1 σ)", 80), what])
+    # the title's lines above the panels, not taken from them
+    fig, axes = plt.subplots(len(kinds), 1, squeeze=False, figsize=(
+        7, 2.8 * len(kinds) + 0.17 * title.count("\n")))
     idx = np.arange(1, len(fit.snapshot_errors) + 1)
     for ax, (col, kind) in zip(axes[:, 0], kinds):
         fitted = np.array([np.nan if e[col] is None else e[col] for e in fit.snapshot_errors])
@@ -633,8 +647,8 @@ def calibration(fit, path, source: str | None = None):
                 f"noise assumed ({'√3 × ' if kind == 'marker' else ''}"
                 f"{fit.noise[col] * 1e3:.3g} mm)"))
             top = max(top, level)
-        if top > 0:
-            ax.set_ylim(0.0, 1.3 * top * 1e3)
+        if top > 0:  # (room for the legend above the bars and the noise's line)
+            ax.set_ylim(0.0, 1.5 * top * 1e3)
         ax.set_ylabel(f"RMS {'marker' if kind == 'marker' else 'tendon-length'} error (mm)")
         if idx.size <= 30:
             ax.set_xticks(idx)
@@ -642,16 +656,7 @@ def calibration(fit, path, source: str | None = None):
             ax.xaxis.set_major_locator(MaxNLocator(nbins=15, integer=True))
         ax.legend(fontsize=8, loc="upper center", ncol=2)
     axes[-1, 0].set_xlabel("snapshot")
-    fitted = ", ".join(
-        f"{k} = {v:.4g}" + ("" if fit.sigma.get(k) is None else f" ± {fit.sigma[k]:.2g}")
-        + parameter_words(k)[1] for k, v in fit.parameters.items())
-    what = "per-snapshot error" + (" and leave-one-out prediction" if fit.crossval else "")
-    if fit.warning:  # said on the figure too, not on standard error alone
-        what += "\nWARNING printed with the fit" + (
-            f": residuals {fit.misfit:.2g} × the noise assumed" if fit.misfit else "")
-    axes[0, 0].set_title("\n".join([
-        f"Calibration of {fit.robot.name}" + (f" from {source}" if source else ""),
-        textwrap.fill(f"fitted {fitted} (1 σ)", 80), what]), fontsize=9)
+    axes[0, 0].set_title(title, fontsize=9)
     fig.tight_layout()
     return _save(fig, path)
 
