@@ -616,7 +616,7 @@ def calibration(fit, path, source: str | None = None):
     parameters fitted."""
     kinds = [(col, kind) for col, kind in enumerate(("marker", "displacement"))
              if any(e[col] is not None for e in fit.snapshot_errors)]
-    fitted = ", ".join(
+    parameters = ", ".join(
         f"{k} = {v:.4g}" + ("" if fit.sigma.get(k) is None else f" ± {fit.sigma[k]:.2g}")
         + parameter_words(k)[1] for k, v in fit.parameters.items())
     what = "per-snapshot error" + (" and leave-one-out prediction" if fit.crossval else "")
@@ -624,7 +624,7 @@ def calibration(fit, path, source: str | None = None):
         what += "\nWARNING printed with the fit" + (
             f": residuals {fit.misfit:.2g} × the noise assumed" if fit.misfit else "")
     title = "\n".join([f"Calibration of {fit.robot.name}" + (f" from {source}" if source else ""),
-                       textwrap.fill(f"fitted {fitted} (1 σ)", 80), what])
+                       textwrap.fill(f"fitted {parameters} (1 σ)", 80), what])
     # the title's lines above the panels, not taken from them
     fig, axes = plt.subplots(len(kinds), 1, squeeze=False, figsize=(
         7, 2.8 * len(kinds) + 0.17 * title.count("\n")))
