@@ -12,8 +12,8 @@ import jax
 import numpy as np
 import pytest
 
-from conftest import robot_from, uniform_rod
-from tendonsense import dynamics
+from conftest import ROOT, robot_from, uniform_rod
+from tendonsense import dynamics, load_robot
 from tendonsense.forward import model_for, solve
 from tendonsense.readings import read_readings
 from tendonsense.robot import RobotFileError, robot_to_toml
@@ -171,6 +171,34 @@ def test_the_long_time_limit_is_the_static_solve():
     assert np.max(np.abs(sim.markers["tip"][-1] - static.markers["tip"])) < 1e-6
     assert abs(sim.displacements["t1"][-1] - static.displacements["t1"]) < 1e-6
     assert np.max(np.abs(sim.markers["tip"][0] - static.markers["tip"])) > 1e-3  # it moved
+
+
+@pytest.mark.parametrize("tension", [3.0, 10.0])
+def test_the_stability_check_with_friction_is_the_motions(tension):
+    """With friction the tangent stiffness is not symmetric (friction has no potential), so
+    the static check (:func:`~tendonsense.statics.unstable`, the eigenvalues of
+    ``(E K)⁻¹ ∂E/∂q``) is held to the motion itself: the damped rod started 1e-4 off the
+    solved shape (the prototype, μ = 0.4, 1.2 N hanging at its tip, t1 pulled; the friction
+    held pulled in) comes back to it where the check passes (3 N), and where the check says
+    unstable (10 N: its planar shape, that a solve from the straight rod keeps by symmetry)
+    it leaves it, out of the plane of its loads, with inertia or without."""
+    robot = load_robot(ROOT / "examples" / "paper_prototype_damped.toml")
+    forces = [(0.25, (0.0, 0.0, -1.2))]
+    static = solve(robot, {"t1": tension}, forces)
+    assert static.converged
+    flagged = "unstable equilibrium" in static.extra.get("note", "")
+    assert flagged == (tension > 5)
+    q = np.asarray(static.q)
+    q0 = q + 1e-4 * np.abs(q).max() * np.random.default_rng(0).standard_normal(q.size)
+    for inertia in (False, True):
+        sim = simulate(robot, {"t1": tension}, forces, duration=3.0, output_dt=0.5,
+                       inertia=inertia, q0=q0, sliding={t: "in" for t in robot.tendon_names})
+        assert sim.ok
+        off = np.linalg.norm(sim.q[-1] - q) / np.linalg.norm(q)
+        if flagged:
+            assert off > 0.3 and abs(sim.markers["tip"][-1][1]) > 0.05, off  # 0.75, 80 mm
+        else:
+            assert off < 1e-6, off
 
 
 def _cli(*args):

@@ -29,6 +29,7 @@ from .kinematics import frames_fn  # noqa: E402
 from .readings import write_bytes_atomic  # noqa: E402
 from .result import Result  # noqa: E402
 from .robot import Robot  # noqa: E402
+from .statics import UNSTABLE_NOTE  # noqa: E402
 from .tendons import turning_along  # noqa: E402
 from .units import GF, between, newtons, spread  # noqa: E402
 
@@ -112,7 +113,9 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     ({tendon: 'in' | 'out' | 'stuck'}, default in) is how the result was solved: a tendon
     paid out grows toward its anchor, a stuck one is drawn at its band's middle (no friction:
     one tension, as :func:`~tendonsense.estimation.estimate` solves it). With ``failed`` (a
-    reason) or a result that did not converge, the views are stamped NOT CONVERGED.
+    reason) or a result that did not converge, the views are stamped NOT CONVERGED; a result
+    at an unstable equilibrium (its note: :func:`~tendonsense.statics.unstable`), UNSTABLE
+    EQUILIBRIUM.
 
     The figure is not pyplot's (``plt.close`` is not needed: it is freed with the last
     reference to it); a notebook shows it as a cell's value, ``fig.savefig`` writes it."""
@@ -210,6 +213,9 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     _title(fig, axes, title, given)
     if failed is not None or not result.converged:
         _stamp(fig, axes, failed)
+    elif UNSTABLE_NOTE in result.extra.get("note", ""):
+        _stamp(fig, axes, "a mode of the rod has lost its stiffness to the loads: the rod "
+                          "would leave this shape for another", "UNSTABLE EQUILIBRIUM")
     return fig
 
 
@@ -442,15 +448,15 @@ def _title(fig, axes, title, given):
         fig.text(left, top, title, fontsize=11, weight="bold", va="bottom")
 
 
-def _stamp(fig, axes, failed):
-    """NOT CONVERGED (and the reason) across the views, their frames red."""
+def _stamp(fig, axes, failed, headline="NOT CONVERGED"):
+    """``headline`` (and the reason) across the views, their frames red."""
     for ax in axes:
         for spine in ax.spines.values():
             spine.set(color="red", lw=2)
     left, bottom, right, top = _extent(axes[:1])  # on the first view, clear of the others
     width = (right - left) * fig.get_figwidth() * 72
     x, y = (left + right) / 2, (bottom + top) / 2
-    fig.text(x, y, "NOT CONVERGED", fontsize=float(np.clip(width / (0.75 * 13), 14, 40)),
+    fig.text(x, y, headline, fontsize=float(np.clip(width / (0.75 * len(headline)), 14, 40)),
              color="red", weight="bold", ha="center", va="bottom" if failed else "center",
              alpha=0.8, zorder=10, bbox=dict(fc="white", ec="red", lw=2, alpha=0.5))
     if failed:

@@ -297,6 +297,8 @@ def _outputs_fn(structure: Structure):
 
 #: an equilibrium whose stiffness ratio (:func:`unstable`) falls below −UNSTABLE is unstable
 UNSTABLE = 1e-6
+#: how :func:`unstable`'s note begins (a result's note holds it among others)
+UNSTABLE_NOTE = "unstable equilibrium"
 
 
 def tangent(values: Values, res: NewtonResult, nq: int) -> np.ndarray:
@@ -320,7 +322,7 @@ def unstable(values: Values, tangent) -> str:
     worst = float(np.min(lam.real)) if np.all(np.isfinite(lam)) else 0.0
     if worst >= -UNSTABLE:
         return ""
-    return (f"unstable equilibrium: a mode of the rod has lost its stiffness to the loads "
+    return (f"{UNSTABLE_NOTE}: a mode of the rod has lost its stiffness to the loads "
             f"(stiffness ratio {worst:.3g}; a column loaded past Euler's load has "
             f"1 − P/P_cr): the rod would buckle or snap away from this shape to another, "
             f"which this solution is not")
