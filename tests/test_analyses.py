@@ -28,6 +28,9 @@ def is_png(path):
 def test_single_tendon_sensitivity_and_figure(sim, tmp_path):
     rows = analyses.sensitivity_single(sim, forces_gf=(-75.0,), n_y=3)
     assert len(rows) == 3
+    # t1 at 7.4 and 6.5 N lifts the rod into shapes it would leave, out of the plane of its
+    # loads (as the damped motion does, tests/test_dynamics.py); at 4.6 N it stays
+    assert [r["unstable"] for r in rows] == [True, True, False]
     for r in rows:
         assert r["estimate_N"] == pytest.approx(r["force_N"], rel=1e-6)
         # each error moves the estimate, the two signs to opposite sides
@@ -37,6 +40,10 @@ def test_single_tendon_sensitivity_and_figure(sim, tmp_path):
     summary = analyses.single_summary(rows)
     assert 0 < summary["tension"]["mean"] <= summary["tension"]["max"] < 0.5
     assert is_png(plotting.sensitivity_single(rows, tmp_path / "a.png"))
+    from tendonsense.cli import _summary_text
+    said = [_summary_text("sensitivity", {"single_tendon": summary, "three_tendons": {},
+                                          "unstable": {"single_tendon": n}}) for n in (2, 0)]
+    assert "(2 cases are unstable equilibria" in said[0] and "unstable" not in said[1]
 
 
 def test_three_tendon_ellipsoids_and_resolution_figures(sim, tmp_path):

@@ -18,6 +18,7 @@ from .estimation import PointForceUnknown, estimate_problem, problem, reduced_ja
 from .forward import forward_kinematics, solve
 from .robot import Robot
 from .model import Values
+from .statics import UNSTABLE_NOTE
 
 from .units import GF  # noqa: F401  (N per gram-force)
 
@@ -53,7 +54,8 @@ def sensitivity_single(robot: Robot, tendon: str = "t1", forces_gf=(-25.0, -75.0
     """Fig. 3a: a tip force along the base frame's z (:func:`_axes`; vertical on the paper's
     prototype) estimated from one tendon, the estimate under ±length, ±tension and ±friction
     errors. One row per (force, y); a row whose truth or estimate did not converge has no
-    estimates, its ``note`` says why."""
+    estimates, its ``note`` says why; ``unstable``: the estimate's shape is an unstable
+    equilibrium (:func:`~tendonsense.statics.unstable`; kept in the summary)."""
     L = robot.rod.length
     up = _axes(robot)[:, 2]
     prob = problem(robot, [tendon], [PointForceUnknown(L, tuple(up))])
@@ -77,6 +79,7 @@ def sensitivity_single(robot: Robot, tendon: str = "t1", forces_gf=(-25.0, -75.0
             rows.append(row)
             continue
         row["estimate_N"] = float(nominal.magnitudes[0])
+        row["unstable"] = UNSTABLE_NOTE in nominal.extra.get("note", "")
         x0 = nominal.extra["x"]
         for sign, tag in ((+1, "plus"), (-1, "minus")):
             cases = {
@@ -127,7 +130,8 @@ def sensitivity_3d(robot: Robot, forces_gf=None, tensions=1.5,
     (N: one for all, or one per tendon); per force and error source, the 3^n estimates from
     every per-tendon error sign (−, 0, +) of amplitude error / n_tendons. Forces and
     estimates are in the base frame (:func:`_axes`); a force whose truth or estimate did not
-    converge has no errors (NaN, and the summary leaves it out)."""
+    converge has no errors (NaN, and the summary leaves it out); ``unstable`` as in
+    :func:`sensitivity_single`."""
     forces_gf = default_3d_forces_gf() if forces_gf is None else forces_gf
     L = robot.rod.length
     names = robot.tendon_names
@@ -143,7 +147,8 @@ def sensitivity_3d(robot: Robot, forces_gf=None, tensions=1.5,
         nominal = estimate_problem(prob, y, T)
         entry = {"force_gF": np.asarray(f_gf, float).tolist(), "force_N": F.tolist(),
                  "estimate_N": nominal.magnitudes.tolist(),
-                 "converged": bool(truth.converged and nominal.converged)}
+                 "converged": bool(truth.converged and nominal.converged),
+                 "unstable": UNSTABLE_NOTE in nominal.extra.get("note", "")}
         if not entry["converged"]:  # no solution: no errors to draw from it
             for source in ("length", "tension", "friction"):
                 entry[source] = {"estimates_N": [], "mean_relative_error": float("nan"),

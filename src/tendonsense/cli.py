@@ -1090,7 +1090,9 @@ def _analysis_run(args, robot):
         summary = {"single_tendon": analyses.single_summary(rows),
                    "three_tendons": analyses.summary_3d(entries),
                    "left_out": {"single_tendon": sum("estimate_N" not in r for r in rows),
-                                "three_tendons": sum(not e["converged"] for e in entries)}}
+                                "three_tendons": sum(not e["converged"] for e in entries)},
+                   "unstable": {"single_tendon": sum(r.get("unstable", False) for r in rows),
+                                "three_tendons": sum(e["unstable"] for e in entries)}}
         keys = sorted({k for r in rows for k in r})
         folder()
         table_, json_, png_, png_3d = (out / name for name in ANALYSIS_FILES["sensitivity"])
@@ -1162,6 +1164,10 @@ def _summary_text(command: str, summary: dict) -> str:
         if n := summary.get("left_out", {}).get("single_tendon"):
             lines.append(f"  ({n} cases left out: slack, or not solved; their notes are in "
                          f"the table)")
+        if n := summary.get("unstable", {}).get("single_tendon"):
+            lines.append(f"  ({n} cases are unstable equilibria, column 'unstable' of "
+                         f"the table: the rod would leave the shape solved, e.g. out of the "
+                         f"plane of its loads; kept in the means)")
         lines.append("three tendons: mean relative error of the estimated 3-D tip force "
                      "(over the applied forces)")
         for src, v in summary["three_tendons"].items():
@@ -1169,6 +1175,9 @@ def _summary_text(command: str, summary: dict) -> str:
             lines.append(f"  {src} error: mean {pct(v['mean'])}, from "
                          f"{pct(v['min_over_forces'])} to {pct(v['max_over_forces'])} "
                          f"(paper: {pct(lo)} to {pct(hi)})")
+        if n := summary.get("unstable", {}).get("three_tendons"):
+            lines.append(f"  ({n} of the forces at unstable equilibria, 'unstable' in the "
+                         f"JSON; kept in the means)")
     elif command == "resolution":
         lines.append("smallest detectable change of each tip-force component "
                      "(mean ± standard deviation over the applied forces)")

@@ -466,14 +466,22 @@ def _stamp(fig, axes, failed, headline="NOT CONVERGED"):
 
 
 def sensitivity_single(rows, path):
-    """Fig. 3a: estimated force vs tendon length change with the band of each error source."""
+    """Fig. 3a: estimated force vs tendon length change with the band of each error source;
+    an estimate at an unstable equilibrium (a row's ``unstable``) drawn as an open circle."""
     fig, ax = plt.subplots(figsize=(7, 4.5))
     forces = sorted({r["force_gF"] for r in rows})
+    shaky = [r for r in rows if r.get("unstable")]
     for f in forces:
         sel = [r for r in rows if r["force_gF"] == f and "estimate_N" in r]
         y = np.array([r["displacement_m"] for r in sel]) * 1e3
         ax.plot(y, [r["estimate_N"] / GF for r in sel], "k.-", lw=1,
                 label="estimate, exact readings" if f == forces[0] else None)
+        if mark := [r for r in shaky if r["force_gF"] == f]:
+            ax.plot([r["displacement_m"] * 1e3 for r in mark],
+                    [r["estimate_N"] / GF for r in mark], "o", ms=6, mfc="white", mec="k",
+                    zorder=5, label=(f"at an unstable equilibrium ({len(shaky)} of "
+                                     f"{len(rows)}: the rod would leave it)")
+                    if mark[0] is shaky[0] else None)
         ax.axhline(f, color="grey", ls=":", lw=0.8,
                    label="applied force" if f == forces[0] else None)
         for s in SOURCES:
