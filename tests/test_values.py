@@ -385,6 +385,41 @@ def test_a_warm_start_imports_no_lapack(tmp_path):
     assert outs[2].stdout.splitlines()[-1] == "[]", outs[2].stdout[-500:]
 
 
+PRELOAD_SCRIPT = """
+import sys, threading
+from tendonsense import compiled, load_robot
+from tendonsense.estimation import PointForceUnknown, estimate
+from tendonsense.forward import solve
+loads, real = [], compiled._kept
+def kept(path):
+    loads.append((path.name.split("-")[0], threading.current_thread().name))
+    return real(path)
+compiled._kept = kept
+robot = load_robot(sys.argv[1])
+assert solve(robot, {"t1": 2.0}).converged
+assert estimate(robot, {"t1": -0.005}, {"t1": 2.1}, [PointForceUnknown(0.25, (0, 0, -1))]
+                ).converged
+print(sorted(loads))
+print(sum(len(p._loading) for p in list(compiled._PROGRAMS)))
+"""
+
+
+def test_a_first_solve_or_estimate_loads_its_later_programs_meanwhile(tmp_path):
+    """In a new process with the programs kept, a solve loads its outputs' program and an
+    estimate its Jacobians' on another thread while its own solver loads and runs; each is
+    loaded once and used (none left waiting: its signature is the call's)."""
+    env = dict(os.environ, TENDONSENSE_CACHE_DIR=str(tmp_path))
+    robot = str(Path(__file__).parents[1] / "examples" / "paper_prototype.toml")
+    outs = [subprocess.run([sys.executable, "-c", PRELOAD_SCRIPT, robot], env=env,
+                           capture_output=True, text=True, timeout=600) for _ in range(2)]
+    assert all(o.returncode == 0 for o in outs), [o.stderr[-2000:] for o in outs]
+    loads, waiting = outs[1].stdout.splitlines()[-2:]
+    ahead = "tendonsense-load_0"
+    assert eval(loads) == sorted([("newton", "MainThread"), ("outputs", ahead),
+                                  ("newton", "MainThread"), ("jacobians", ahead)]), loads
+    assert waiting == "0"
+
+
 def test_a_series_bounds_each_samples_tension_with_its_own_modulus(prototype):
     """A series or batch with its own E per sample checks each tension against half of that
     sample's E·A (39.3 N at the tip with the file's E): 20 N breaks the rule at E/4, 45 N

@@ -20,6 +20,7 @@ import platform
 import tempfile
 import threading
 import weakref
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager, suppress
 from functools import lru_cache
 from pathlib import Path
@@ -63,6 +64,7 @@ class Program:
         self.fn, self.name, self.key = fn, name, repr(key)
         self.jitted = jax.jit(fn)
         self.loaded: dict[tuple, object] = {}
+        self._loading: dict[tuple, Future] = {}  # (:meth:`preload`)
         self._last = None  # the executable of the last call
         _PROGRAMS.add(self)
 
@@ -86,23 +88,44 @@ class Program:
         signature = _signature(args)
         call = self.loaded.get(signature)
         if call is None:
-            with _COMPILING:
-                call = self.loaded.get(signature)
-                if call is None:
-                    call = self._load(signature, args)
-                    self.loaded[signature] = call
+            loading = self._loading.pop(signature, None)
+            call = None if loading is None else loading.result()
+            if call is None:
+                with _COMPILING:
+                    call = self.loaded.get(signature)
+                    if call is None:
+                        call = self._load(signature, args)
+            self.loaded[signature] = call
         return call
 
-    def _load(self, signature: tuple, args):
-        """The kept executable for ``signature``, or a new one compiled and kept."""
+    def preload(self, *args) -> None:
+        """Begin loading the kept executable for arguments of the kinds of ``args`` on another
+        thread, while this one goes on (e.g. loads and runs the program before it); a call
+        waits for it. For a program's first executable only (a process's first contact), and
+        nothing where it is not kept (a call compiles it)."""
+        if self.loaded or self._loading:
+            return
+        signature = _signature(args)
+        path = self._path(signature)
+        if path is not None and path.exists():
+            self._loading[signature] = _loader().submit(_kept, path)
+
+    def _path(self, signature: tuple) -> Path | None:
+        """Where the executable for ``signature`` is kept (None: no cache directory)."""
         root = cache_dir()
         if root is None:
-            return _compile(self.jitted, args)
+            return None
         tree, leaves = signature
         described = ",".join(f"{shape}:{dtype}:{weak}" for shape, dtype, weak in leaves)
         digest = hashlib.sha256(f"{self.name}|{self.key}|{tree}|{described}|{_source_hash()}"
                                 .encode()).hexdigest()[:32]
-        path = root / "programs" / f"{self.name}-{digest}.exe"
+        return root / "programs" / f"{self.name}-{digest}.exe"
+
+    def _load(self, signature: tuple, args):
+        """The kept executable for ``signature``, or a new one compiled and kept."""
+        path = self._path(signature)
+        if path is None:
+            return _compile(self.jitted, args)
         kept = _kept(path)
         if kept is not None:
             return kept
@@ -166,6 +189,13 @@ def _announce() -> None:
     kept = (f"once for this robot's structure on this machine, then kept in {root / 'programs'}"
             if root else "every run: TENDONSENSE_CACHE_DIR is empty, so none are kept")
     hook(f"tendonsense: compiling the programs this run needs (5-20 s; {kept})")
+
+
+@lru_cache(maxsize=1)
+def _loader() -> ThreadPoolExecutor:
+    """The thread that loads executables ahead of their first call (:meth:`Program.preload`;
+    loading one, in XLA, leaves the other core to this process's main thread)."""
+    return ThreadPoolExecutor(1, thread_name_prefix="tendonsense-load")
 
 
 #: every program of this process, for :func:`release`
@@ -232,12 +262,16 @@ def _serialize(compiled) -> bytes:
     return pickle.dumps(("lapack" in compiled.as_text(), serialize(compiled)))
 
 
+_LAPACK = threading.Lock()
+
+
 def _deserialize(data: bytes):
     from jax.experimental.serialize_executable import deserialize_and_load
     lapack, payload = pickle.loads(data)
     if lapack:  # its kernels, registered from SciPy's LAPACK (0.2–0.3 s to import)
         from jax._src.lax import linalg
-        linalg.initialize_lapack()
+        with _LAPACK:  # (also from the loading thread)
+            linalg.initialize_lapack()
     return deserialize_and_load(*payload)
 
 

@@ -29,7 +29,8 @@ from .problem import (Problem, _jacobians_fn, confounded, noise_covariance,  # n
 from .result import Result, joined
 from .robot import Robot, check_robot
 from .sliding import band_note, band_range
-from .statics import Drive, NewtonResult, Unknowns, shape_outputs, solve_system
+from .statics import (Drive, NewtonResult, Unknowns, preload_outputs, shape_outputs,
+                      solve_system)
 
 
 #: Bates–Watts relative offset below which a least-squares estimate that no step improves is
@@ -232,10 +233,20 @@ def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Nois
     values = model.values if values is None else values
     if prob.located:
         return _locate(prob, drive, values, T, noise, budget)
+    _preload(prob, drive, values)
     x, converged, iterations, res, misfit, why = _solve(prob, drive, values, x0, budget,
                                                         total_budget)
     return _result(prob, x, drive, values, T, noise, converged, iterations, res, misfit,
                    why=why)
+
+
+def _preload(prob: Problem, drive: Drive, values: Values) -> None:
+    """The programs an estimate runs after its solve (its Jacobians, the shape's outputs),
+    loaded from disk on another thread while the solve's own loads and runs."""
+    nq, x = prob.model.nq, np.zeros(prob.model.nq + prob.n_z)
+    _jacobians_fn(prob.model.structure, prob.measured).preload(
+        x[:nq], x[nq:], drive.tensions, drive, prob.unknowns, values)
+    preload_outputs(prob.model.structure, values)
 
 
 def _solve(prob: Problem, drive: Drive, values: Values, x0, budget, total_budget=None):

@@ -20,7 +20,7 @@ from .model import Model, material_values
 from .result import Result
 from .robot import Robot, check_robot
 from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, derivatives, marker_positions,
-                      shape_outputs, solve_system, tangent, unstable)
+                      preload_outputs, shape_outputs, solve_system, tangent, unstable)
 
 #: a tension below −TENSION_TOL times the largest (at least 1 N) is a tendon pushing: no
 #: solution
@@ -111,6 +111,7 @@ def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
     drive = _statics_drive(robot, tensions, point_forces)
     values = sliding_values(robot, model.values, sliding)
     unknowns = Unknowns.none(len(robot.tendons), drive.load_X.shape[0])
+    preload_outputs(model.structure, values)
     res = solve_system(model.structure, values, (), drive, unknowns,
                        inputs.start(q0, model.nq))
     shaky = unstable(values, tangent(values, res, model.nq)) if bool(res.converged) else ""

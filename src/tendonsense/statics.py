@@ -334,6 +334,12 @@ def shape_outputs(structure: Structure, values: Values, q):
     return tuple(np.asarray(a) for a in _outputs_fn(structure)(values, np.asarray(q, float)))
 
 
+def preload_outputs(structure: Structure, values: Values) -> None:
+    """:func:`shape_outputs`' program loaded from disk on another thread, ahead of its first
+    call (:meth:`~tendonsense.compiled.Program.preload`)."""
+    _outputs_fn(structure).preload(values, np.zeros(structure.nq))
+
+
 def marker_positions(structure: Structure, values: Values, q):
     """Marker positions (n_m, 3) at q, traceable (differentiable in q and in the values)."""
     _, mk = poses(values, q, points_at(structure, values, values.marker_X))
