@@ -550,11 +550,17 @@ def ellipsoids(entries, path):
 
 
 def resolution(rows, path):
+    """§IV resolution: each axis' smallest detectable force change over the applied forces
+    (a box of the forces solved), from 0, the paper's mean ± standard deviation beneath."""
+    from .analyses import PAPER_RESOLUTION_G
     fig, ax = plt.subplots(figsize=(6, 4))
-    data = [[r[f"resolution_{a}_g"] for r in rows] for a in "xyz"]
-    ax.boxplot(data, tick_labels=["Δx", "Δy", "Δz"])
+    data = [[v for r in rows if np.isfinite(v := r[f"resolution_{a}_g"])] for a in "xyz"]
+    ax.boxplot(data, tick_labels=[f"Δ{a}\n(paper: {m:.2f} ± {sd:.2f})"
+                                  for a, (m, sd) in PAPER_RESOLUTION_G.items()])
+    ax.set_ylim(0, None)
     ax.set_ylabel("smallest detectable increment (gF)")
-    ax.set_title("Smallest detectable force change per axis\n(tension sensors resolving ±(2.5/3) %)")
+    ax.set_title(f"Smallest detectable force change per axis, over {len(data[0])} tip forces"
+                 f"\n(tension sensors resolving ±(2.5/3) %)")
     return _save(fig, path)
 
 
