@@ -22,7 +22,7 @@ import threading
 import weakref
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager, suppress
-from functools import lru_cache
+from functools import lru_cache, wraps
 from pathlib import Path
 
 import jax
@@ -62,7 +62,12 @@ class Program:
 
     def __init__(self, fn, name: str, key):
         self.fn, self.name, self.key = fn, name, repr(key)
-        self.jitted = jax.jit(fn)
+
+        @wraps(fn)
+        def own(*args):  # a lowering of its own (JAX caches them by function): stripped
+            return fn(*args)  # in place (:func:`_strip_locations`), it is no one else's
+
+        self.jitted = jax.jit(own)
         self.loaded: dict[tuple, object] = {}
         self._loading: dict[tuple, Future] = {}  # (:meth:`preload`)
         self._last = None  # the executable of the last call
@@ -108,7 +113,10 @@ class Program:
         signature = _signature(args)
         path = self._path(signature)
         if path is not None and path.exists():
-            self._loading[signature] = _loader().submit(_kept, path)
+            try:
+                self._loading[signature] = _loader().submit(_kept, path)
+            except RuntimeError:  # the interpreter is shutting down: the call loads it
+                pass
 
     def _path(self, signature: tuple) -> Path | None:
         """Where the executable for ``signature`` is kept (None: no cache directory)."""
@@ -170,7 +178,7 @@ def _strip_locations(lowered) -> None:
         with module.context:
             passmanager.PassManager.parse("builtin.module(strip-debuginfo)").run(
                 module.operation)
-    except Exception:  # (an XLA error then names no line of this package's source)
+    except Exception:  # compiled as it was lowered
         pass
 
 
@@ -208,6 +216,7 @@ def release() -> None:
     with _COMPILING:
         for program in list(_PROGRAMS):
             program.loaded.clear()
+            program._loading.clear()
             program._last = None
 
 

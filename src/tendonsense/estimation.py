@@ -246,7 +246,7 @@ def _preload(prob: Problem, drive: Drive, values: Values) -> None:
     nq, x = prob.model.nq, np.zeros(prob.model.nq + prob.n_z)
     _jacobians_fn(prob.model.structure, prob.measured).preload(
         x[:nq], x[nq:], drive.tensions, drive, prob.unknowns, values)
-    preload_outputs(prob.model.structure, values)
+    preload_outputs(prob.model.structure, prob.model.values)  # (as :func:`make_result`)
 
 
 def _solve(prob: Problem, drive: Drive, values: Values, x0, budget, total_budget=None):

@@ -111,7 +111,7 @@ def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
     drive = _statics_drive(robot, tensions, point_forces)
     values = sliding_values(robot, model.values, sliding)
     unknowns = Unknowns.none(len(robot.tendons), drive.load_X.shape[0])
-    preload_outputs(model.structure, values)
+    preload_outputs(model.structure, model.values)  # (as :func:`make_result`)
     res = solve_system(model.structure, values, (), drive, unknowns,
                        inputs.start(q0, model.nq))
     shaky = unstable(values, tangent(values, res, model.nq)) if bool(res.converged) else ""

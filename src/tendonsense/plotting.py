@@ -480,7 +480,8 @@ def sensitivity_single(rows, path):
             ax.plot([r["displacement_m"] * 1e3 for r in mark],
                     [r["estimate_N"] / GF for r in mark], "o", ms=6, mfc="white", mec="k",
                     zorder=5, label=(f"at an unstable equilibrium ({len(shaky)} of "
-                                     f"{len(rows)}: the rod would leave it)")
+                                     f"{sum('estimate_N' in r for r in rows)}: the rod "
+                                     f"would leave it)")
                     if mark[0] is shaky[0] else None)
         ax.axhline(f, color="grey", ls=":", lw=0.8,
                    label="applied force" if f == forces[0] else None)
