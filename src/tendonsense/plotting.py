@@ -114,8 +114,8 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     paid out grows toward its anchor, a stuck one is drawn at its band's middle (no friction:
     one tension, as :func:`~tendonsense.estimation.estimate` solves it). With ``failed`` (a
     reason) or a result that did not converge, the views are stamped NOT CONVERGED; a result
-    at an unstable equilibrium (its note: :func:`~tendonsense.statics.unstable`), UNSTABLE
-    EQUILIBRIUM.
+    at an unstable equilibrium (its note: :func:`~tendonsense.statics.unstable`) has red
+    frames and UNSTABLE EQUILIBRIUM under its title.
 
     The figure is not pyplot's (``plt.close`` is not needed: it is freed with the last
     reference to it); a notebook shows it as a cell's value, ``fig.savefig`` writes it."""
@@ -157,7 +157,10 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     fig = Figure()
     FigureCanvasAgg(fig)
     axes, cax = [fig.add_axes((0, 0, 1, 1)) for _ in VIEWS], fig.add_axes((0, 0, 1, 1))
-    n_title = bool(title) + bool(given)
+    warning = ("UNSTABLE EQUILIBRIUM: the rod would leave this shape for another"
+               if failed is None and result.converged
+               and UNSTABLE_NOTE in result.extra.get("note", "") else "")
+    n_title = bool(title) + bool(given) + bool(warning)
     tmax = max([T for _, T, _, along in tendons for T in (T, *along)], default=0.0)
     norm = Normalize(0.0, tmax if tmax > 0 else 1.0)
     bar_names = _bar_names(tendons, norm.vmax)
@@ -210,12 +213,11 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     else:
         cax.remove()
     _legend(fig, axes, tendons, markers, measured, loads)
-    _title(fig, axes, title, given)
+    _title(fig, axes, title, given, warning)
     if failed is not None or not result.converged:
         _stamp(fig, axes, failed)
-    elif UNSTABLE_NOTE in result.extra.get("note", ""):
-        _stamp(fig, axes, "a mode of the rod has lost its stiffness to the loads: the rod "
-                          "would leave this shape for another", "UNSTABLE EQUILIBRIUM")
+    elif warning:  # a solution still: its labels kept clear
+        _red_frames(axes)
     return fig
 
 
@@ -436,27 +438,33 @@ def _extent(axes):
             max(b.y1 for b in boxes))
 
 
-def _title(fig, axes, title, given):
+def _title(fig, axes, title, given, warning=""):
     left, _, right, top = _extent(axes)
     top += 0.3 / fig.get_figheight()
-    if given:  # wrapped to the views' width (about half a point size per character)
-        width = int((right - left) * fig.get_figwidth() * 72 / (9 * 0.55))
-        lines = textwrap.wrap(given, max(width, 20), subsequent_indent="  ")
-        fig.text(left, top, "\n".join(lines), fontsize=9, va="bottom")
-        top += (0.1 + 0.16 * len(lines)) / fig.get_figheight()
+    # wrapped to the views' width (about half a point size per character)
+    width = max(int((right - left) * fig.get_figwidth() * 72 / (9 * 0.55)), 20)
+    for text, style in ((warning, dict(color="red", weight="bold")), (given, {})):
+        if text:
+            lines = textwrap.wrap(text, width, subsequent_indent="  ")
+            fig.text(left, top, "\n".join(lines), fontsize=9, va="bottom", **style)
+            top += (0.1 + 0.16 * len(lines)) / fig.get_figheight()
     if title:
         fig.text(left, top, title, fontsize=11, weight="bold", va="bottom")
 
 
-def _stamp(fig, axes, failed, headline="NOT CONVERGED"):
-    """``headline`` (and the reason) across the views, their frames red."""
+def _red_frames(axes):
     for ax in axes:
         for spine in ax.spines.values():
             spine.set(color="red", lw=2)
+
+
+def _stamp(fig, axes, failed):
+    """NOT CONVERGED (and the reason) across the views, their frames red."""
+    _red_frames(axes)
     left, bottom, right, top = _extent(axes[:1])  # on the first view, clear of the others
     width = (right - left) * fig.get_figwidth() * 72
     x, y = (left + right) / 2, (bottom + top) / 2
-    fig.text(x, y, headline, fontsize=float(np.clip(width / (0.75 * len(headline)), 14, 40)),
+    fig.text(x, y, "NOT CONVERGED", fontsize=float(np.clip(width / (0.75 * 13), 14, 40)),
              color="red", weight="bold", ha="center", va="bottom" if failed else "center",
              alpha=0.8, zorder=10, bbox=dict(fc="white", ec="red", lw=2, alpha=0.5))
     if failed:
