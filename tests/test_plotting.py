@@ -167,7 +167,7 @@ def test_failed_results_are_stamped(solved, prototype, failed):
 
 def test_an_unstable_equilibrium_is_stamped(prototype):
     """A solution the robot would leave (10 N with 1.2 N hanging at the tip: out of the plane
-    of its loads, tests/test_dynamics.py) is drawn stamped as such; a stable one is not."""
+    of its loads, tests/test_dynamics.py) is drawn saying so; a stable one is not."""
     said = []
     for tension in (3.0, 10.0):
         result = solve(prototype, {"t1": tension}, [(0.25, (0.0, 0.0, -1.2))])

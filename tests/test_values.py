@@ -1,6 +1,7 @@
 """Values at run time (issue 8): one compiled program per robot structure, point loads at any
 X, batched solves and exact derivatives with respect to the values."""
 
+import ast
 import dataclasses
 import os
 import subprocess
@@ -244,7 +245,7 @@ def test_programs_compile_with_the_packages_options(tmp_path, monkeypatch, kept)
     np.testing.assert_allclose(out, 2 * np.sin(x), rtol=1e-15)
 
 
-def test_programs_are_compiled_without_source_locations(tmp_path, monkeypatch):
+def test_programs_are_compiled_without_source_locations(monkeypatch):
     """A program's executable carries no source locations or operation names (they were a
     fifth to a third of its size and of its loading), and computes what the function with
     them does; the same function jitted elsewhere keeps its own (JAX caches lowerings by
@@ -418,7 +419,7 @@ def test_a_first_solve_or_estimate_loads_its_later_programs_meanwhile(tmp_path):
     assert all(o.returncode == 0 for o in outs), [o.stderr[-2000:] for o in outs]
     loads, waiting = outs[1].stdout.splitlines()[-2:]
     ahead = "tendonsense-load_0"
-    assert eval(loads) == sorted([("newton", "MainThread"), ("outputs", ahead),
+    assert ast.literal_eval(loads) == sorted([("newton", "MainThread"), ("outputs", ahead),
                                   ("newton", "MainThread"), ("jacobians", ahead)]), loads
     assert waiting == "0"
 
