@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Callable, Iterator, Mapping, Sequence
 import numpy as np
 
 from .inputs import (WALK, NoDampingWarning, Noise, Unknown, check_noise, check_point_forces,
-                     check_unknowns, tendon_vector)
+                     check_unknowns, tendon_vector, warn_no_damping)
 from .readings import LogSummary, log_outputs
 from .result import SampleEstimate
 from .robot import Robot
@@ -328,9 +328,8 @@ def estimate_logs(client, robot: Robot, logs: Sequence[str | Path], out_dir: str
     if not os.access(out_dir, os.W_OK):
         raise ValueError(f"{out_dir}: the folder is not writable")
     outs = log_outputs(logs, out_dir)
-    if dynamic and robot.rod.damping <= 0:
-        warnings.warn("the robot has no [rod] damping: estimation in motion filters the "
-                      "quasi-static model in every log", NoDampingWarning, stacklevel=2)
+    if dynamic:
+        warn_no_damping(robot, " in every log")
     tasks = [(robot, str(log), str(out), list(unknowns), list(point_forces), noise, dynamic,
               walk) for log, out in zip(logs, outs)]
     return [LogSummary(str(log), str(out), error=f"{log}: {r}") if isinstance(r, Exception)

@@ -24,8 +24,8 @@ from .inputs import (GravityUnknown, Noise, PointForceUnknown, Unknown,  # noqa:
                      check_noise)
 from .model import Values
 from .problem import (Problem, _jacobians_fn, confounded, noise_covariance,  # noqa: F401
-                      jacobians, misfit_note, problem, reduced_jacobians, unseen,
-                      unstable_at)
+                      jacobians, misfit_note, preload_jacobians, problem, reduced_jacobians,
+                      unseen, unstable_at)
 from .result import Result, joined
 from .robot import Robot, check_robot
 from .sliding import band_note, band_range
@@ -243,9 +243,7 @@ def estimate_problem(prob: Problem, displacements, tensions, noise: Noise = Nois
 def _preload(prob: Problem, drive: Drive, values: Values) -> None:
     """The programs an estimate runs after its solve (its Jacobians, the shape's outputs),
     loaded from disk on another thread while the solve's own loads and runs."""
-    nq, x = prob.model.nq, np.zeros(prob.model.nq + prob.n_z)
-    _jacobians_fn(prob.model.structure, prob.measured).preload(
-        x[:nq], x[nq:], drive.tensions, drive, prob.unknowns, values)
+    preload_jacobians(prob, drive, values)
     preload_outputs(prob.model.structure, prob.model.values)  # (as :func:`make_result`)
 
 

@@ -29,7 +29,6 @@ and signs the Capstan exponent of its step (one step a sample: no iteration on t
 
 from __future__ import annotations
 
-import warnings
 from functools import lru_cache
 from typing import Mapping, NamedTuple
 
@@ -40,8 +39,8 @@ import numpy as np
 from .compiled import Program
 from .dynamics import free_modes
 from .estimation import estimate_problem
-from .inputs import (WALK, Noise, NoDampingWarning, check_noise, check_stuck,
-                     sliding as check_sliding)
+from .inputs import (WALK, Noise, check_noise, check_stuck, sliding as check_sliding,
+                     warn_no_damping)
 from .kinematics import poses, positions
 from .model import PointSet, Structure, Values, points_at
 from .problem import Problem, _jacobians_fn, confounded
@@ -218,11 +217,7 @@ class MotionFilter:
         self.problem, self.noise, self.walk = prob, noise, walk
         model = prob.model
         rod = prob.robot.rod
-        if rod.damping <= 0:
-            warnings.warn("the robot has no [rod] damping: estimation in motion filters the "
-                          "quasi-static model, each sample a step toward the equilibrium (give "
-                          "[rod] damping, Pa·s, or fit it: identify --param damping)",
-                          NoDampingWarning, stacklevel=3)
+        warn_no_damping(prob.robot, stacklevel=3)
         self.ringing = 0  # the modes that ring (ζ < 1) carry the rod's inertia
         if inertia and rod.damping > 0 and rod.density > 0:
             self.ringing = int(np.sum(free_modes(model.structure, model.values)[1] < 1.0))

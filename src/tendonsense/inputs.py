@@ -17,6 +17,7 @@ The rules for a reading:
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Collection, Mapping, Sequence
@@ -616,6 +617,16 @@ MAX_STEP = 2e-3
 class NoDampingWarning(UserWarning):
     """Estimation in motion on a robot without ``[rod] damping``: the filter's model is the
     quasi-static one (each sample a step toward the equilibrium), not a moving rod's."""
+
+
+def warn_no_damping(robot, where: str = "", stacklevel: int = 2) -> None:
+    """:class:`NoDampingWarning` where ``robot`` has no damping (``where``: e.g. " in every
+    log"), pointing at the caller ``stacklevel`` frames up."""
+    if robot.rod.damping <= 0:
+        warnings.warn(f"the robot has no [rod] damping: estimation in motion filters the "
+                      f"quasi-static model{where}, each sample a step toward the equilibrium "
+                      f"(give [rod] damping, Pa·s, or fit it: identify --param damping)",
+                      NoDampingWarning, stacklevel=stacklevel + 1)
 
 
 def coarse_step(robot, max_step: float) -> str | None:

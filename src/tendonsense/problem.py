@@ -205,9 +205,20 @@ def _jacobians_fn(structure: Structure, measured: tuple[int, ...]):
 
 def jacobians(prob: Problem, x, drive, values: Values) -> tuple[np.ndarray, ...]:
     """``(∂E/∂q, ∂E/∂z, ∂E/∂T, ∂y_meas/∂q)`` at ``x`` (one call of the compiled program)."""
-    nq, x = prob.model.nq, np.asarray(x, float)
     return tuple(np.asarray(a) for a in _jacobians_fn(prob.model.structure, prob.measured)(
-        x[:nq], x[nq:], drive.tensions, drive, prob.unknowns, values))
+        *_jacobians_args(prob, x, drive, values)))
+
+
+def preload_jacobians(prob: Problem, drive, values: Values) -> None:
+    """:func:`jacobians`' program loaded from disk on another thread, ahead of its first call
+    (:meth:`~tendonsense.compiled.Program.preload`)."""
+    _jacobians_fn(prob.model.structure, prob.measured).preload(
+        *_jacobians_args(prob, np.zeros(prob.model.nq + prob.n_z), drive, values))
+
+
+def _jacobians_args(prob: Problem, x, drive, values: Values) -> tuple:
+    nq, x = prob.model.nq, np.asarray(x, float)
+    return x[:nq], x[nq:], drive.tensions, drive, prob.unknowns, values
 
 
 def reduced_jacobians(prob: Problem, x, drive, values: Values, parts=None):
