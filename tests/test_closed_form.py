@@ -71,3 +71,27 @@ def test_a_column_past_eulers_load_is_said_to_be_unstable(ratio):
     est = estimate(robot, {"t": res.displacements["t"]}, {"t": 0.0},
                    [PointForceUnknown(L, (-1.0, 0.0, 0.0))])
     assert est.converged and est.extra["note"].startswith("unstable equilibrium")
+
+
+def test_a_batch_marks_the_columns_past_eulers_load():
+    """``solve_batch(..., stability=True)`` makes :func:`solve`'s check on every sample: the
+    column above at P/P_cr from 0.5 to 1.5 in one batch, unstable above 1 with the ratio
+    1 − P/P_cr in its note (a sweep reported them converged without a word); unchecked by
+    default."""
+    from tendonsense.tracking import solve_batch
+    r, L, E = 0.005, 0.25, 1e6
+    robot = robot_from(rod=uniform_rod(r, L, E), gravity={"acceleration": [0, 0, 0]},
+                       tendon=[{"name": "t", "offset_base": [0, 0.004],
+                                "offset_tip": [0, 0.004], "friction": 0.0, "disks": 9}])
+    ratio = np.array([0.5, 0.97, 1.03, 1.2, 1.5])
+    P = ratio * np.pi**2 * E * (np.pi * r**4 / 4) / (4 * L**2)
+    loads = [(L, np.stack([-P, 0 * P, 0 * P], 1))]
+    out = solve_batch(robot, {"t": np.zeros(5)}, loads, stability=True)
+    assert out.converged.all() and list(out.unstable) == [False, False, True, True, True]
+    assert list(out.notes[:2]) == ["", ""]
+    for k in (2, 3, 4):
+        assert out.notes[k].startswith("unstable equilibrium")
+        lam = float(out.notes[k].split("stiffness ratio ")[1].split(";")[0])
+        assert lam == pytest.approx(1 - ratio[k], abs=2e-3 * ratio[k])
+    plain = solve_batch(robot, {"t": np.zeros(5)}, loads)
+    assert plain.unstable is None and set(plain.notes) == {""}

@@ -376,6 +376,38 @@ def test_a_sweep_writes_one_row_per_set(where, client, prototype, tmp_path, caps
                                one.markers["tip"], rtol=0, atol=1e-9)
 
 
+@pytest.mark.parametrize("where", ["here", "cluster"])
+def test_a_sweep_marks_the_sets_at_unstable_equilibria(where, client, prototype, tmp_path,
+                                                       capsys):
+    """The prototype with 1.2 N hanging at its tip: at t1 = 10 N its planar shape is one the
+    rod leaves (test_dynamics), at 3 N not — the sweep says so as solve does (column
+    unstable, the note, a count; a sweep said converged without a word); --skip-stability
+    leaves the column blank."""
+    from tendonsense.forward import solve
+    (tmp_path / "sets.csv").write_text("id,tension_t1,load_X,load_fx,load_fy,load_fz\n"
+                                       "a,3.0,0.25,0,0,-1.2\nb,10.0,0.25,0,0,-1.2\n")
+    extra = ["--scheduler", client.scheduler.address] if where == "cluster" else []
+    out = tmp_path / "results.csv"
+    code = cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", out, "--json",
+                     "--quiet", *extra])
+    assert code == 0 and json.loads(capsys.readouterr().out)["unstable"] == 1
+    rows = list(csv.DictReader(open(out)))
+    assert [(r["converged"], r["unstable"]) for r in rows] == [("true", "false"),
+                                                               ("true", "true")]
+    said = solve(prototype, {"t1": 10.0}, [(0.25, (0, 0, -1.2))]).extra["note"]
+    assert rows[1]["solver_note"].startswith("unstable equilibrium")
+    assert float(rows[1]["solver_note"].split("stiffness ratio ")[1].split(";")[0]) == \
+        pytest.approx(float(said.split("stiffness ratio ")[1].split(";")[0]), rel=1e-3)
+    assert rows[0]["solver_note"] == ""
+    assert cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", out, "--quiet",
+                     *extra]) == 0
+    assert "1 of them at unstable equilibria" in capsys.readouterr().out
+    assert cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", out, "--json",
+                     "--quiet", "--skip-stability", *extra]) == 0
+    assert json.loads(capsys.readouterr().out)["unstable"] is None
+    assert {r["unstable"] for r in csv.DictReader(open(out))} == {""}
+
+
 def test_a_set_with_no_solution_is_marked_with_why(tmp_path, capsys):
     """38 N at the tip has no solution within 2 solver iterations a stage: its row says why,
     the others are solved and say nothing; exit status 3."""

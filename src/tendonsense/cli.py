@@ -502,6 +502,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "set; repeatable")
     p.add_argument("--sliding", action="append", default=[], type=_forward_direction,
                    metavar="NAME=in|out", help=SLIDING_HELP.format(", in every set"))
+    p.add_argument("--skip-stability", action="store_true",
+                   help="do not check whether each set's equilibrium is stable (column "
+                        "unstable left blank; a large sweep takes about half the time)")
     _cluster_options(p, "the sets")
     p.add_argument("--task-size", type=int, metavar="N",
                    help="with --workers or --scheduler: sets per task (default 1000)")
@@ -1766,21 +1769,26 @@ def _sweep(args, robot) -> bool:
             if client is None:
                 from .tracking import solve_batch
                 out = solve_batch(robot, sets.tensions, forces, sets.values,
-                                  sliding=args.sliding)
+                                  sliding=args.sliding, stability=not args.skip_stability)
             else:
                 from .distributed import TASK_SIZE, solve_batch
                 out = solve_batch(client, robot, sets.tensions, forces, sets.values,
-                                  args.task_size or TASK_SIZE, prog, sliding=args.sliding)
+                                  args.task_size or TASK_SIZE, prog, sliding=args.sliding,
+                                  stability=not args.skip_stability)
         finally:
             prog.close()
     write_csv_atomic(args.results, *sweep_rows(robot, sets, out, _point_forces(args),
                                                args.sliding))
     n, good = len(sets.rows), int(out.converged.sum())
+    shaky = None if out.unstable is None else int(out.unstable.sum())
     if args.json:
-        print(json.dumps({"sets": n, "converged": good, "output": str(args.results)}))
+        print(json.dumps({"sets": n, "converged": good, "unstable": shaky,
+                          "output": str(args.results)}))
     else:
-        print(f"solved {n} parameter set{'' if n == 1 else 's'}: {good} converged; wrote "
-              f"{args.results}")
+        print(f"solved {n} parameter set{'' if n == 1 else 's'}: {good} converged"
+              + (f", {shaky} of them at unstable equilibria (the rod would leave those "
+                 f"shapes: column unstable, and their solver_note)" if shaky else "")
+              + f"; wrote {args.results}")
     return good == n
 
 

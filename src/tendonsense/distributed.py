@@ -173,20 +173,22 @@ def task_chunks(n: int, task_size: int = TASK_SIZE) -> list[np.ndarray]:
 
 
 def solve_chunk(robot: Robot, T: np.ndarray, X: np.ndarray, F: np.ndarray,
-                values: Mapping[str, np.ndarray], sliding: Mapping[str, str] | None = None
-                ) -> BatchResult:
+                values: Mapping[str, np.ndarray], sliding: Mapping[str, str] | None = None,
+                stability: bool = False) -> BatchResult:
     """One task of :func:`solve_batch`: :func:`tendonsense.tracking.solve_batch` over
     tensions ``T`` (n, n_t), point forces at ``X`` (n, n_p) of ``F`` (n, n_p, 3), the
-    varied ``values`` and the tendons' ``sliding``, on one thread."""
+    varied ``values``, the tendons' ``sliding`` and whether to check ``stability``, on one
+    thread."""
     from .tracking import solve_batch as solve_local
     forces = [(X[:, i], F[:, i]) for i in range(X.shape[1])]
-    return solve_local(robot, T, forces, dict(values), workers=1, sliding=sliding)
+    return solve_local(robot, T, forces, dict(values), workers=1, sliding=sliding,
+                       stability=stability)
 
 
 def solve_batch(client, robot: Robot, tensions, point_forces: Sequence = (),
                 values: Mapping[str, object] | None = None, task_size: int = TASK_SIZE,
-                progress: Progress | None = None, sliding: Mapping[str, str] | None = None
-                ) -> BatchResult:
+                progress: Progress | None = None, sliding: Mapping[str, str] | None = None,
+                stability: bool = False) -> BatchResult:
     """:func:`tendonsense.tracking.solve_batch` over a cluster (``client``; ``None``: this
     process): the same arguments, checked here; the batch ordered along its first principal
     direction and cut into chunks of ``task_size`` samples (:func:`task_chunks`), each chunk a
@@ -216,7 +218,7 @@ def solve_batch(client, robot: Robot, tensions, point_forces: Sequence = (),
         [T, X, F.reshape(n, -1), *(v.reshape(n, -1) for v in varied.values())], axis=1))
     chunks = [order[c] for c in task_chunks(n, task_size)]
     tasks = [(robot, T[c], X[c], F[c], {k: np.ascontiguousarray(v[c]) for k, v in varied.items()},
-              dict(sliding or {})) for c in chunks]
+              dict(sliding or {}), stability) for c in chunks]
     parts = _run(client, solve_chunk, tasks, progress)
     for part in parts:
         if isinstance(part, Exception):
@@ -233,7 +235,8 @@ def solve_batch(client, robot: Robot, tensions, point_forces: Sequence = (),
         {m: back([p.markers[m] for p in parts]) for m in robot.marker_names},
         {t: back([p.displacements[t] for p in parts]) for t in robot.tendon_names},
         back([p.converged for p in parts]), back([p.iterations for p in parts]),
-        back([p.notes for p in parts]))
+        back([p.notes for p in parts]),
+        back([p.unstable for p in parts]) if stability else None)
 
 
 def estimate_chunk(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unknown],

@@ -29,7 +29,8 @@ from .kinematics import poses, positions
 from .model import Structure, points_at
 from .problem import Problem, noise_covariance
 from .sliding import FIXED_POINT, STATE_TOL, Band, play, pulled, reach
-from .statics import (CACHE_SIZE, UNSTABLE, Drive, Scaling, admissible, residual, scaling)
+from .statics import (CACHE_SIZE, UNSTABLE, Drive, Scaling, admissible, residual, scaled_ratios,
+                      scaling)
 
 
 class Track(NamedTuple):
@@ -296,9 +297,8 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         # the fit can slide to one along the readings' blind direction (the sample is then
         # solved on its own, from the straight rod; a sample started afresh, e.g. from such a
         # solution, is taken as it is); the stiffness ratios of
-        # :func:`~tendonsense.statics.unstable`: the eigenvalues of
-        # (E K)⁻¹ ∂E/∂q = L⁻ᵀ J_qq / √E with J_qq = L⁻¹ ∂E/∂q / √E
-        ratios = jnp.linalg.eigvals(st["J"][:nq, :nq] @ vs[1].L_inv.T).real
+        # :func:`~tendonsense.statics.unstable`
+        ratios = scaled_ratios(st["J"][:nq, :nq], vs[1].L_inv)
         ok = (st["status"] == 1) & fine & (~carry.ok | (jnp.min(ratios) >= -UNSTABLE))
         # Gauss–Newton sensitivity to the measurements [y_meas; T] (as the uncertainty of
         # eq. 17 in :mod:`tendonsense.estimation`): the same elimination, right-hand side R_m

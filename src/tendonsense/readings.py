@@ -794,8 +794,10 @@ def sweep_rows(robot: Robot, sets: ParameterSets, result, point_forces=(),
     given apart from the table (``point_forces`` [(X, (fx, fy, fz))] as
     ``point_force_<k>_X/_fx/_fy/_fz``, m and N; ``sliding`` {tendon: direction} as
     ``sliding_<tendon>``), then its markers (``marker_<name>_x/_y/_z``, m), its tendons' length
-    changes (``displacement_<tendon>``, m), ``converged`` and ``solver_note``, why a set is no
-    solution (a :class:`~tendonsense.tracking.BatchResult` ``result``)."""
+    changes (``displacement_<tendon>``, m), ``converged``, ``unstable`` (true where the set's
+    equilibrium is one the rod would leave; blank where not converged or not checked) and
+    ``solver_note``, why a set is no solution or is unstable (a
+    :class:`~tendonsense.tracking.BatchResult` ``result``)."""
     given = [(f"point_force_{k}_{c}", repr(float(v)))
              for k, (X, f) in enumerate(point_forces, start=1)
              for c, v in zip(("X", "fx", "fy", "fz"), (X, *f))]
@@ -803,7 +805,7 @@ def sweep_rows(robot: Robot, sets: ParameterSets, result, point_forces=(),
     header = (sets.header + [c for c, _ in given]
               + [f"marker_{m}_{a}" for m in robot.marker_names for a in AXES]
               + [f"displacement_{t}" for t in robot.tendon_names]
-              + ["converged", "solver_note"])
+              + ["converged", "unstable", "solver_note"])
     rows = []
     for k, cells in enumerate(sets.rows):
         ok = bool(result.converged[k])
@@ -811,8 +813,10 @@ def sweep_rows(robot: Robot, sets: ParameterSets, result, point_forces=(),
                for v in result.markers[m][k]]
         out += [repr(float(result.displacements[t][k])) if ok else ""
                 for t in robot.tendon_names]
+        shaky = "" if result.unstable is None or not ok else str(
+            bool(result.unstable[k])).lower()
         rows.append(cells + [v for _, v in given] + out
-                    + ["true" if ok else "false", result.notes[k]])
+                    + ["true" if ok else "false", shaky, result.notes[k]])
     return header, rows
 
 

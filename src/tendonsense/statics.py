@@ -308,24 +308,67 @@ def tangent(values: Values, res: NewtonResult, nq: int) -> np.ndarray:
     return np.sqrt(float(values.young_modulus)) * L @ np.asarray(res.jacobian, float)[:nq, :nq]
 
 
-def unstable(values: Values, tangent) -> str:
-    """Why an equilibrium whose tangent stiffness is ``tangent`` (``∂E/∂q`` with the tensions
-    and any unknowns held) is unstable, or '': a mode whose stiffness the loads have overcome.
-    The eigenvalues λ of ``(E K)⁻¹ ∂E/∂q`` — the tangent stiffness over the material's (the
-    Hessian of the potential energy where there is no friction) — are 1 for an unloaded rod
-    and ``1 − P/P_cr``
-    for a column under an end load P (Euler's P_cr); one below −:data:`UNSTABLE` grows from any
-    disturbance: the rod buckles or snaps away from this shape."""
+def stiffness_ratio(values: Values, tangent) -> float:
+    """The least real part of the eigenvalues λ of ``(E K)⁻¹ ∂E/∂q`` at an equilibrium whose
+    tangent stiffness is ``tangent`` (``∂E/∂q`` with the tensions and any unknowns held): the
+    tangent stiffness over the material's (the Hessian of the potential energy where there is
+    no friction). λ is 1 for an unloaded rod and ``1 − P/P_cr`` for a column under an end load
+    P (Euler's P_cr); below −:data:`UNSTABLE` a mode grows from any disturbance (0 where an
+    eigenvalue is not finite)."""
     K = float(values.young_modulus) * np.asarray(values.stiffness(), float)
     with np.errstate(all="ignore"):
         lam = np.linalg.eigvals(np.linalg.solve(K, np.asarray(tangent, float)))
-    worst = float(np.min(lam.real)) if np.all(np.isfinite(lam)) else 0.0
-    if worst >= -UNSTABLE:
+    return float(np.min(lam.real)) if np.all(np.isfinite(lam)) else 0.0
+
+
+def scaled_ratios(J_qq, L_inv):
+    """The real parts of the eigenvalues of :func:`stiffness_ratio`'s ``(E K)⁻¹ ∂E/∂q`` from
+    the scaled residual's ``J_qq = L⁻¹ ∂E/∂q / √E`` (:func:`residual`, ``L_inv`` its
+    :class:`Scaling`'s): the same eigenvalues as ``L⁻ᵀ J_qq / √E = J_qq L_invᵀ``, traceable."""
+    return jnp.linalg.eigvals(J_qq @ L_inv.T).real
+
+
+def unstable_note(ratio: float) -> str:
+    """Why an equilibrium of stiffness ratio ``ratio`` (:func:`stiffness_ratio`) is unstable,
+    or '': a mode whose stiffness the loads have overcome."""
+    if not ratio < -UNSTABLE:
         return ""
     return (f"{UNSTABLE_NOTE}: a mode of the rod has lost its stiffness to the loads "
-            f"(stiffness ratio {worst:.3g}; a column loaded past Euler's load has "
+            f"(stiffness ratio {ratio:.3g}; a column loaded past Euler's load has "
             f"1 − P/P_cr): the rod would buckle or snap away from this shape to another, "
             f"which this solution is not")
+
+
+def unstable(values: Values, tangent) -> str:
+    """Why an equilibrium whose tangent stiffness is ``tangent`` (``∂E/∂q`` with the tensions
+    and any unknowns held) is unstable, or '' (:func:`stiffness_ratio`, :func:`unstable_note`):
+    the rod buckles or snaps away from this shape."""
+    return unstable_note(stiffness_ratio(values, tangent))
+
+
+@lru_cache(maxsize=CACHE_SIZE)
+def _ratios_fn(structure: Structure):
+    def ratios(values, varied, drives, unknowns, xs):
+        def one(sample):
+            x, d, p = sample
+            v = values._replace(**p)
+            sc = scaling(v, ())
+            J = jax.jacfwd(lambda x: residual(structure, v, (), x, d, unknowns, 1.0, sc)[0])(x)
+            lam = scaled_ratios(J, sc.L_inv)
+            return jnp.where(jnp.all(jnp.isfinite(lam)), jnp.min(lam), 0.0)
+
+        return jax.lax.map(one, (xs, drives, varied))  # one sample at a time: no batched jacfwd
+
+    return Program(ratios, "stiffness_ratios", structure)
+
+
+def stiffness_ratios(structure: Structure, values: Values, varied: dict, drives: Drive,
+                     unknowns: Unknowns, xs) -> np.ndarray:
+    """:func:`stiffness_ratio` of forward-statics solutions ``xs`` (n, nq) of ``drives`` (a
+    :class:`Drive` with a leading sample axis), each with its own ``varied`` values ({name:
+    (n, ...)}, may be empty), in one compiled program (an exact Jacobian each)."""
+    return np.asarray(_ratios_fn(structure)(values, varied, drives, unknowns,
+                                            jnp.asarray(xs, float)))
 
 
 def shape_outputs(structure: Structure, values: Values, q):

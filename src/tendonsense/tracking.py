@@ -24,7 +24,8 @@ from .problem import Problem, band, confounded, covariance, misfit_notes  # noqa
 from .result import SampleEstimate, compact_repr, joined
 from .robot import Robot, value_error
 from .sliding import Band, FrictionHistory, labels, turning_program
-from .statics import Drive, Unknowns, shape_outputs, solve_system
+from .statics import (UNSTABLE, Drive, Unknowns, shape_outputs, solve_system, stiffness_ratios,
+                      unstable_note)
 from .tendons import turns
 
 
@@ -277,14 +278,17 @@ class BatchResult:
     displacements: dict[str, np.ndarray]  # tendon -> (N,), eq. 9
     converged: np.ndarray  # (N,) bool
     iterations: np.ndarray  # (N,) residual evaluations
-    notes: np.ndarray  # (N,) str: why a sample is no solution ('' where it converged)
+    notes: np.ndarray  # (N,) str: why a sample is no solution, or is at an unstable equilibrium
+    #: (N,) bool: at an unstable equilibrium (its note says so; checked with ``stability``)
+    unstable: np.ndarray | None = None
 
     __repr__ = compact_repr
 
 
 def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
                 values: Mapping[str, object] | None = None, chunk: int = 100,
-                workers: int = 2, sliding: Mapping[str, str] | None = None) -> BatchResult:
+                workers: int = 2, sliding: Mapping[str, str] | None = None,
+                stability: bool = False) -> BatchResult:
     """Forward statics over a batch of tensions, point loads and values, for sweeps and Monte
     Carlo: one compiled program per robot structure, whatever the numbers.
 
@@ -298,6 +302,11 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     solved by the compiled tracker, each warm-started from its neighbour, on ``workers``
     threads; a sample it cannot converge is solved again on its own from the straight rod
     with load continuation.
+
+    ``stability``: each converged sample's equilibrium is checked as
+    :func:`~tendonsense.forward.solve` checks its own (an exact Jacobian and an eigenvalue
+    problem a sample, about twice a sample's solve): ``unstable`` marks the shapes the rod
+    would leave for another, and their notes say so (:func:`~tendonsense.statics.unstable`).
 
     >>> E = np.linspace(0.8e6, 1.2e6, 1000)
     >>> out = solve_batch(robot, {"t1": np.full(1000, 2.0)}, values={"young_modulus": E})
@@ -320,7 +329,7 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     runs = [r for r in np.array_split(principal_order(features), max(1, workers)) if r.size]
     q, mk = np.zeros((n, structure.nq)), np.zeros((n, len(robot.markers), 3))
     y, conv, its = np.zeros((n, n_t)), np.zeros(n, bool), np.zeros(n, int)
-    notes = np.full(n, "", object)
+    notes, ratio = np.full(n, "", object), np.full(n, np.nan)
 
     def drive(rows):
         return Drive(jnp.asarray(T[rows]), jnp.asarray(F[rows]), jnp.asarray(X[rows]),
@@ -346,15 +355,23 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
                 conv[k], its[k] = bool(res.converged) and bool(fine), int(res.evaluations)
                 if not conv[k]:
                     notes[k] = why_not(res, bool(fine), robot.numerics.tolerance)
+            if stability:
+                ratio[idx] = stiffness_ratios(structure, base, {k: jnp.asarray(v[rows]) for k, v
+                                                                in varied.items()},
+                                              drive(rows), unknowns,
+                                              np.where(conv[rows, None], q[rows], 0.0))[:idx.size]
             good = np.flatnonzero(conv[idx])
             if good.size:
                 x0 = q[idx[good[-1]]]
 
     with ThreadPoolExecutor(len(runs)) as pool:
         list(pool.map(solve_run, runs))
+    shaky = conv & (ratio < -UNSTABLE) if stability else None
+    for k in np.flatnonzero(shaky) if stability else ():
+        notes[k] = unstable_note(ratio[k])
     return BatchResult(q, {m: mk[:, i] for i, m in enumerate(robot.marker_names)},
                        {t: y[:, j] for j, t in enumerate(robot.tendon_names)}, conv, its,
-                       notes)
+                       notes, shaky)
 
 
 def batch_inputs(robot: Robot, base, tensions, point_forces, values):
