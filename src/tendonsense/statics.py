@@ -371,6 +371,13 @@ def stiffness_ratios(structure: Structure, values: Values, varied: dict, drives:
                                             jnp.asarray(xs, float)))
 
 
+def preload_stiffness_ratios(structure: Structure, values: Values, varied: dict,
+                             drives: Drive, unknowns: Unknowns, xs) -> None:
+    """:func:`stiffness_ratios`' program for these arguments' kinds loaded from disk on
+    another thread, ahead of its first call (:meth:`~tendonsense.compiled.Program.preload`)."""
+    _ratios_fn(structure).preload(values, varied, drives, unknowns, jnp.asarray(xs, float))
+
+
 def shape_outputs(structure: Structure, values: Values, q):
     """Marker positions (n_m, 3), backbone (101, 3), tendon length changes and whether the
     strain is :func:`admissible` at q."""

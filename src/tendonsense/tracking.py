@@ -24,8 +24,8 @@ from .problem import Problem, band, confounded, covariance, misfit_notes  # noqa
 from .result import SampleEstimate, compact_repr, joined
 from .robot import Robot, value_error
 from .sliding import Band, FrictionHistory, labels, turning_program
-from .statics import (UNSTABLE, Drive, Unknowns, shape_outputs, solve_system, stiffness_ratios,
-                      unstable_note)
+from .statics import (UNSTABLE, Drive, Unknowns, preload_stiffness_ratios, shape_outputs,
+                      solve_system, stiffness_ratios, unstable_note)
 from .tendons import turns
 
 
@@ -335,6 +335,10 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
         return Drive(jnp.asarray(T[rows]), jnp.asarray(F[rows]), jnp.asarray(X[rows]),
                      jnp.asarray(g[rows]), jnp.zeros((len(rows), 0)))
 
+    def ratio_args(rows):  # the chunk's solutions (the straight rod where not converged)
+        return (structure, base, {k: jnp.asarray(v[rows]) for k, v in varied.items()},
+                drive(rows), unknowns, np.where(conv[rows, None], q[rows], 0.0))
+
     def solve_run(run):
         x0 = np.zeros(structure.nq)
         for start in range(0, run.size, chunk):
@@ -356,14 +360,13 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
                 if not conv[k]:
                     notes[k] = why_not(res, bool(fine), robot.numerics.tolerance)
             if stability:
-                ratio[idx] = stiffness_ratios(structure, base, {k: jnp.asarray(v[rows]) for k, v
-                                                                in varied.items()},
-                                              drive(rows), unknowns,
-                                              np.where(conv[rows, None], q[rows], 0.0))[:idx.size]
+                ratio[idx] = stiffness_ratios(*ratio_args(rows))[:idx.size]
             good = np.flatnonzero(conv[idx])
             if good.size:
                 x0 = q[idx[good[-1]]]
 
+    if stability:
+        preload_stiffness_ratios(*ratio_args(np.zeros(chunk, int)))
     with ThreadPoolExecutor(len(runs)) as pool:
         list(pool.map(solve_run, runs))
     shaky = conv & (ratio < -UNSTABLE) if stability else None
