@@ -209,6 +209,8 @@ def test_estimate_view_follows_a_live_stream(driver):
         open_page(driver, port)
         wait_for(lambda: re.search(r"F1 = \d+\.\d+ ± \d+\.\d+ N at X = 250\.0 mm",
                                    text(driver)))
+        assert "the last 10 s" not in text(driver)  # one sample: no empty time plot
+        keep(driver, "view_first_sample.png")
         before = backbone_pixels(driver)
         p.stdin.write("0.1,3.0,0,0,-0.006\n")
         p.stdin.flush()
@@ -216,6 +218,7 @@ def test_estimate_view_follows_a_live_stream(driver):
         wait_for(lambda: "t1 3.000 N" in text(driver))
         wait_for(lambda: (backbone_pixels(driver) != before).sum() > 300)
         assert "samples/s" in text(driver)
+        wait_for(lambda: "the last 10 s" in text(driver))
         keep(driver, "view_estimate.png")
         p.stdin.write("0.2,-1.0,0,0,-0.006\n")  # a tendon cannot push: refused, and shown so
         p.stdin.flush()
@@ -243,6 +246,18 @@ def test_a_taken_port_is_refused_clearly():
                            capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert r.returncode == 1 and not r.stdout
     assert f"cannot serve the view on 127.0.0.1:{port}" in r.stderr
+
+
+def test_a_host_that_cannot_be_served_is_one_line():
+    """An address that is no host: its error alone (a warning that the view was served to
+    the network came first)."""
+    r = subprocess.run([sys.executable, "-m", "tendonsense.cli", "view",
+                        "examples/paper_prototype.toml", "--host", "999.1.1.1"],
+                       capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert r.returncode == 1 and not r.stdout
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(
+        "tendonsense view: error: cannot serve the view on 999.1.1.1:8080: "), r.stderr
 
 
 def test_a_tendons_colour_follows_its_tension_along_it():

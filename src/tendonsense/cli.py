@@ -1531,13 +1531,13 @@ def _paced(lines, viewer):
 
 def _open_view(args, robot, title=None, pause=False):
     from .view import ViewProcess, explore
-    if args.host not in ("127.0.0.1", "localhost", "::1"):
-        print(f"tendonsense: warning: the view is served on {args.host}:{args.port}, visible "
-              f"to other machines on the network", file=sys.stderr)
     if args.command == "view":
         viewer = explore(robot, args.port, args.host, args.max_tension, args.max_force)
     else:
         viewer = ViewProcess(robot, args.port, args.host, title, pause)
+    if args.host not in ("127.0.0.1", "localhost", "::1"):  # once it is served
+        print(f"tendonsense: warning: the view is served on {args.host}:{args.port}, visible "
+              f"to other machines on the network", file=sys.stderr)
     print(f"tendonsense: view at http://{args.host}:{args.port}", file=sys.stderr)
     return viewer
 

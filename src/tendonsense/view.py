@@ -371,6 +371,8 @@ class Viewer:
 
     def _draw_plot(self, sample):
         self._record(sample)
+        if self.plot is None and len(self.history) < 2:  # no line to draw yet: no empty axes
+            return
         keys = tuple(k for k in sample if k != "t")
         t0 = self.history[-1]["t"]
         data = (np.array([h["t"] - t0 for h in self.history]),
