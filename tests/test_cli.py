@@ -52,3 +52,30 @@ def test_bad_flag(flag):
     assert p.returncode != 0
     assert p.stdout == ""
     assert len(p.stderr.strip().splitlines()) == 1, p.stderr
+
+
+def test_solve_settle_finds_the_state_beyond_the_planar_branch(tmp_path):
+    """The paper's simulated robot without friction, t1 at 6.5 N and 1.2 N hanging at its
+    tip: the planar shape a solve from the straight rod keeps by symmetry ends before this
+    load (not converged, exit 3), but the rod has a stable state out of that plane;
+    ``--settle`` finds it (converged, said so, its stability checked again: a solve from it
+    says nothing), a figure drawn."""
+    from tendonsense import load_robot
+    from tendonsense.forward import solve
+    robot = tmp_path / "sim.toml"
+    robot.write_text(PROTOTYPE.with_name("paper_simulation.toml").read_text()
+                     .replace("friction = 0.3", "friction = 0.0"))
+    args = ("solve", robot, "--tension", "t1=6.5", "--point-force", "0.25,0,0,-1.2", "--json")
+    plain = run(*args)
+    assert plain.returncode == 3 and json.loads(plain.stdout)["converged"] is False
+    fig = tmp_path / "settled.png"
+    p = run(*args, "--settle", "--plot", fig)
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout)
+    assert out["converged"] is True and out["note"].startswith(
+        "settled: the equilibrium from the straight rod was not found")
+    assert abs(out["markers"]["tip"][1]) > 0.03  # out of the plane of its loads (49 mm)
+    again = solve(load_robot(robot), {"t1": 6.5}, [(0.25, (0, 0, -1.2))], q0=out["q"])
+    assert again.converged and "note" not in again.extra
+    assert again.markers["tip"] == pytest.approx(out["markers"]["tip"], abs=1e-9)
+    assert fig.stat().st_size > 10_000

@@ -95,3 +95,31 @@ def test_a_batch_marks_the_columns_past_eulers_load():
         assert lam == pytest.approx(1 - ratio[k], abs=2e-3 * ratio[k])
     plain = solve_batch(robot, {"t": np.zeros(5)}, loads)
     assert plain.unstable is None and set(plain.notes) == {""}
+
+
+def test_a_column_past_eulers_load_settles_in_the_elastica():
+    """Past Euler's load the straight column is unstable and ``solve(..., settle=True)``
+    gives the buckled one: the cantilever elastica under an end load P along its axis, tip
+    angle α with k = sin(α/2) from K(k) = λL, λ = √(P/EI): tip deflection 2k/λ and axial
+    position (2E(k) − K(k))/λ (Timoshenko & Gere, §2.7; complete elliptic integrals)."""
+    from scipy.optimize import brentq
+    from scipy.special import ellipe, ellipk
+    r, L, E, ratio = 0.005, 0.25, 1e6, 1.5
+    robot = robot_from(rod=uniform_rod(r, L, E), gravity={"acceleration": [0, 0, 0]},
+                       tendon=[{"name": "t", "offset_base": [0, 0.004],
+                                "offset_tip": [0, 0.004], "friction": 0.0, "disks": 9}],
+                       marker=[{"name": "tip", "X": L}])
+    EI = E * np.pi * r**4 / 4
+    P = ratio * np.pi**2 * EI / (4 * L**2)
+    lam = np.sqrt(P / EI)
+    m = brentq(lambda m: ellipk(m) - lam * L, 1e-12, 1 - 1e-12)  # m = k²
+    k = np.sqrt(m)
+    res = solve(robot, point_forces=[(L, (-P, 0.0, 0.0))], settle=True)
+    assert res.converged and "unstable equilibrium" not in res.extra["note"]
+    assert res.extra["note"].startswith("settled: the equilibrium from the "
+                                                          "straight rod was unstable")
+    tip = res.markers["tip"]
+    assert np.hypot(tip[1], tip[2]) == pytest.approx(2 * k / lam, rel=1e-3)  # 1.1e-4
+    assert tip[0] == pytest.approx((2 * ellipe(m) - ellipk(m)) / lam, rel=1e-3)  # 1.3e-4
+    again = solve(robot, point_forces=[(L, (-P, 0.0, 0.0))], q0=res.q)
+    assert again.converged and "note" not in again.extra  # stable: no note

@@ -423,6 +423,7 @@ def test_a_set_with_no_solution_is_marked_with_why(tmp_path, capsys):
                                                          ("c", "true")]
     assert rows[1]["solver_note"].startswith("the solver stopped after")
     assert rows[1]["marker_tip_x"] == "" and rows[0]["solver_note"] == rows[2]["solver_note"] == ""
+    assert [r["unstable"] for r in rows] == ["false", "", "false"]  # not known where unsolved
 
 
 def test_a_task_size_without_a_cluster_is_refused(tmp_path, capsys):

@@ -167,7 +167,8 @@ def test_failed_results_are_stamped(solved, prototype, failed):
 
 def test_an_unstable_equilibrium_is_stamped(prototype):
     """A solution the robot would leave (10 N with 1.2 N hanging at the tip: out of the plane
-    of its loads, tests/test_dynamics.py) is drawn saying so; a stable one is not."""
+    of its loads, tests/test_dynamics.py) is drawn saying so; a stable one is not, and the
+    state it settles in (``solve(..., settle=True)``) says SETTLED, not unstable."""
     said = []
     for tension in (3.0, 10.0):
         result = solve(prototype, {"t1": tension}, [(0.25, (0.0, 0.0, -1.2))])
@@ -175,6 +176,11 @@ def test_an_unstable_equilibrium_is_stamped(prototype):
         said.append(" ".join(t.get_text() for t in fig.texts))
     assert "UNSTABLE EQUILIBRIUM" not in said[0] and "UNSTABLE EQUILIBRIUM" in said[1]
     assert "NOT CONVERGED" not in said[1]
+    settled = solve(prototype, {"t1": 10.0}, [(0.25, (0.0, 0.0, -1.2))], settle=True)
+    fig = plotting.shape_figure(settled, prototype)
+    said = " ".join(t.get_text() for t in fig.texts)
+    assert "SETTLED" in said and "UNSTABLE" not in said and "NOT CONVERGED" not in said
+    assert {ax.spines["top"].get_edgecolor() for ax in fig.axes[:2]} != {(1.0, 0.0, 0.0, 1.0)}
 
 
 def test_calibration_errors_in_mm(monkeypatch, tmp_path):

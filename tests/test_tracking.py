@@ -266,3 +266,33 @@ def test_one_program_whichever_tendons_are_pulled(log, prototype, monkeypatch):
     estimate_series(prob, y[:3], T[:3])
     estimate_series(prob, y[:3], [dict(t, t2=0.3) for t in T[:3]])
     assert len(keys) == 4 and keys[0] == keys[1] and keys[2] == keys[3], keys
+
+
+def test_a_batch_checked_for_stability_says_what_solve_says(prototype):
+    """``solve_batch(..., stability=True)`` over samples with their own E, ν and μ per tendon
+    across the prototype's threshold (1.2 N hanging at the tip, t1 3–10 N): each sample's
+    flag and stiffness ratio are those of ``solve`` on that robot. Warm-started from its
+    neighbour the tracker reached another, strongly unstable equilibrium at 8.5 N (ratio
+    −1.35, its tip 0.13 m higher, where ``solve`` finds +0.009): such a sample is solved
+    again from the straight rod."""
+    import dataclasses
+    import re
+    from tendonsense.tracking import solve_batch
+    t1 = np.array([3.0, 6.0, 8.0, 8.3, 8.5, 8.7, 9.0, 10.0])
+    rng = np.random.default_rng(0)
+    E = np.linspace(0.95e6, 1.05e6, t1.size)[rng.permutation(t1.size)]
+    nu = np.linspace(0.45, 0.5, t1.size)[rng.permutation(t1.size)]
+    mu = rng.uniform(0.2, 0.5, (t1.size, 3))
+    hang = [(0.25, (0.0, 0.0, -1.2))]
+    out = solve_batch(prototype, {"t1": t1}, hang, stability=True,
+                      values={"young_modulus": E, "poisson_ratio": nu, "friction": mu})
+    assert out.converged.all()
+    for k in range(t1.size):
+        robot = prototype.with_parameters(young_modulus=E[k],
+                                          friction=dict(zip(prototype.tendon_names, mu[k])))
+        robot = dataclasses.replace(robot, rod=dataclasses.replace(robot.rod,
+                                                                   poisson_ratio=nu[k]))
+        said = solve(robot, {"t1": t1[k]}, hang).extra.get("note", "")
+        assert out.unstable[k] == said.startswith("unstable equilibrium"), (t1[k], said)
+        assert re.findall(r"ratio (\S+);", out.notes[k]) == re.findall(r"ratio (\S+);", said)
+    assert out.unstable.sum() == 4  # 8.3, 8.7, 9 and 10 N with these E, ν and μ

@@ -18,7 +18,7 @@ from .estimation import PointForceUnknown, estimate_problem, problem, reduced_ja
 from .forward import forward_kinematics, solve
 from .robot import Robot
 from .model import Values
-from .statics import UNSTABLE_NOTE
+from .stability import UNSTABLE_NOTE
 
 from .units import GF  # noqa: F401  (N per gram-force)
 
@@ -55,7 +55,7 @@ def sensitivity_single(robot: Robot, tendon: str = "t1", forces_gf=(-25.0, -75.0
     prototype) estimated from one tendon, the estimate under ±length, ±tension and ±friction
     errors. One row per (force, y); a row whose truth or estimate did not converge has no
     estimates, its ``note`` says why; ``unstable``: the estimate's shape is an unstable
-    equilibrium (:func:`~tendonsense.statics.unstable`; kept in the summary)."""
+    equilibrium (:func:`~tendonsense.stability.unstable`; kept in the summary)."""
     L = robot.rod.length
     up = _axes(robot)[:, 2]
     prob = problem(robot, [tendon], [PointForceUnknown(L, tuple(up))])

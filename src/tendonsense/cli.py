@@ -281,6 +281,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "named are slack")
     p.add_argument("--sliding", action="append", default=[], type=_forward_direction,
                    metavar="NAME=in|out", help=SLIDING_HELP.format(""))
+    p.add_argument("--settle", action="store_true",
+                   help="where the shape found from the straight rod is an unstable "
+                        "equilibrium (or none is found), give the stable state the rod comes "
+                        "to rest in from it instead (it keeps the plane of its loads, the "
+                        "robot may not)")
 
     p = command("fk", "shape and tensions from tendon length changes (forward kinematics)",
                 "Compute the rod's shape and the tensions needed for the given tendon length "
@@ -1287,7 +1292,8 @@ def _single(args, robot) -> bool:
         title = "estimation"
     elif args.command == "solve":
         from .forward import solve
-        result = solve(robot, args.tension, _point_forces(args), sliding=args.sliding)
+        result = solve(robot, args.tension, _point_forces(args), sliding=args.sliding,
+                       settle=args.settle)
         title = "forward statics"
     else:
         from .forward import forward_kinematics

@@ -29,8 +29,8 @@ from .kinematics import poses, positions
 from .model import Structure, points_at
 from .problem import Problem, noise_covariance
 from .sliding import FIXED_POINT, STATE_TOL, Band, play, pulled, reach
-from .statics import (CACHE_SIZE, UNSTABLE, Drive, Scaling, admissible, residual, scaled_ratios,
-                      scaling)
+from .stability import UNSTABLE, scaled_ratios
+from .statics import CACHE_SIZE, Drive, Scaling, admissible, residual, scaling
 
 
 class Track(NamedTuple):
@@ -297,7 +297,7 @@ def _sample_fns(structure: Structure, measured: tuple[int, ...], n_z: int,
         # the fit can slide to one along the readings' blind direction (the sample is then
         # solved on its own, from the straight rod; a sample started afresh, e.g. from such a
         # solution, is taken as it is); the stiffness ratios of
-        # :func:`~tendonsense.statics.unstable`
+        # :func:`~tendonsense.stability.unstable`
         ratios = scaled_ratios(st["J"][:nq, :nq], vs[1].L_inv)
         ok = (st["status"] == 1) & fine & (~carry.ok | (jnp.min(ratios) >= -UNSTABLE))
         # Gauss–Newton sensitivity to the measurements [y_meas; T] (as the uncertainty of

@@ -19,8 +19,10 @@ from .kinematics import poses
 from .model import Model, material_values
 from .result import Result
 from .robot import Robot, check_robot
+from . import stability
+from .stability import SETTLED_NOTE, tangent, unstable
 from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, derivatives, marker_positions,
-                      preload_outputs, shape_outputs, solve_system, tangent, unstable)
+                      preload_outputs, shape_outputs, solve_system)
 
 #: a tension below −TENSION_TOL times the largest (at least 1 N) is a tendon pushing: no
 #: solution
@@ -102,11 +104,16 @@ def sliding_values(robot: Robot, values, directions: Mapping[str, str] | None):
 
 def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
           point_forces: Sequence[PointForce] = (), q0=None,
-          sliding: Mapping[str, str] | None = None) -> Result:
+          sliding: Mapping[str, str] | None = None, settle: bool = False) -> Result:
     """Forward statics: the equilibrium shape under tendon ``tensions`` (N, by tendon name;
     missing tendons are slack), gravity and known global ``point_forces`` [(X, f), ...];
     ``sliding`` ({tendon: 'in' | 'out'}, default in) is the direction each tendon slides,
-    which sets the sense of its friction."""
+    which sets the sense of its friction.
+
+    Solved from the straight rod (or ``q0``), the shape keeps the plane of its loads; where it
+    is an unstable equilibrium its note says so. With ``settle``, where it is unstable or no
+    equilibrium was found, the result is instead the stable state the rod comes to rest in
+    from it (:func:`~tendonsense.stability.settle`), its note says so."""
     model = model_for(robot)
     drive = _statics_drive(robot, tensions, point_forces)
     values = sliding_values(robot, model.values, sliding)
@@ -115,8 +122,35 @@ def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
     res = solve_system(model.structure, values, (), drive, unknowns,
                        inputs.start(q0, model.nq))
     shaky = unstable(values, tangent(values, res, model.nq)) if bool(res.converged) else ""
+    if settle and (shaky or not bool(res.converged)):
+        return _settled(model, values, drive, unknowns, res, shaky)
     return make_result(model, res.x, np.asarray(drive.tensions), res,
                        **({"extra": {"note": shaky}} if shaky else {}))
+
+
+def _settled(model: Model, values, drive: Drive, unknowns: Unknowns, first: NewtonResult,
+             shaky: str) -> Result:
+    """:func:`solve`'s result where the rod settles from its first solution ``first`` (an
+    unstable equilibrium, ``shaky`` its note, or no solution), Newton's at the end."""
+    tol = model.robot.numerics.tolerance
+    came = stability.settle(model.structure, values, drive, unknowns, np.asarray(first.x), tol)
+    res = solve_system(model.structure, values, (), drive, unknowns, came.x)
+    res = res._replace(iterations=first.iterations + came.steps + res.iterations,
+                       converged=bool(res.converged) and came.converged)
+    found = ("was unstable (stiffness ratio "
+             + shaky.split("stiffness ratio ")[1].split(";")[0] + ")" if shaky
+             else "was not found")
+    if not bool(res.converged):
+        return make_result(model, res.x, np.asarray(drive.tensions), res, why=(
+            f"the rod did not come to rest: the equilibrium from the straight rod {found}, "
+            f"and {came.steps} pseudo-time steps from it "
+            f"({came.nudges} nudge{'' if came.nudges == 1 else 's'} along an unstable mode) "
+            f"reached no stable one (stiffness ratio {came.ratio:.3g} where they stopped)"))
+    return make_result(model, res.x, np.asarray(drive.tensions), res, extra={"note": (
+        f"{SETTLED_NOTE}: the equilibrium from the straight rod {found}; this is the stable state "
+        f"the rod comes to rest in from it, nudged along its unstable mode ({came.steps} "
+        f"pseudo-time steps; the opposite nudge may rest in another state: the mirror image "
+        f"where the loads lie in a plane)")})
 
 
 def forward_kinematics(robot: Robot, displacements: Mapping[str, float],

@@ -29,7 +29,7 @@ from .kinematics import frames_fn  # noqa: E402
 from .readings import write_bytes_atomic  # noqa: E402
 from .result import Result  # noqa: E402
 from .robot import Robot  # noqa: E402
-from .statics import UNSTABLE_NOTE  # noqa: E402
+from .stability import SETTLED_NOTE, UNSTABLE_NOTE  # noqa: E402
 from .tendons import turning_along  # noqa: E402
 from .units import GF, between, newtons, spread  # noqa: E402
 
@@ -114,8 +114,9 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     paid out grows toward its anchor, a stuck one is drawn at its band's middle (no friction:
     one tension, as :func:`~tendonsense.estimation.estimate` solves it). With ``failed`` (a
     reason) or a result that did not converge, the views are stamped NOT CONVERGED; a result
-    at an unstable equilibrium (its note: :func:`~tendonsense.statics.unstable`) has red
-    frames and UNSTABLE EQUILIBRIUM under its title.
+    at an unstable equilibrium (its note: :func:`~tendonsense.stability.unstable`) has red
+    frames and UNSTABLE EQUILIBRIUM under its title; one that settled from such a state
+    (:func:`~tendonsense.forward.solve`'s ``settle``) says SETTLED there.
 
     The figure is not pyplot's (``plt.close`` is not needed: it is freed with the last
     reference to it); a notebook shows it as a cell's value, ``fig.savefig`` writes it."""
@@ -160,7 +161,11 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     warning = ("UNSTABLE EQUILIBRIUM: the rod would leave this shape for another"
                if failed is None and result.converged
                and UNSTABLE_NOTE in result.extra.get("note", "") else "")
-    n_title = bool(title) + bool(given) + bool(warning)
+    remark = ("SETTLED: the stable state the rod comes to rest in from the equilibrium found "
+              "first (the mirror image is another where the loads lie in a plane)"
+              if failed is None and result.converged
+              and result.extra.get("note", "").startswith(SETTLED_NOTE) else "")
+    n_title = bool(title) + bool(given) + bool(warning) + bool(remark)
     tmax = max([T for _, T, _, along in tendons for T in (T, *along)], default=0.0)
     norm = Normalize(0.0, tmax if tmax > 0 else 1.0)
     bar_names = _bar_names(tendons, norm.vmax)
@@ -213,7 +218,7 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     else:
         cax.remove()
     _legend(fig, axes, tendons, markers, measured, loads)
-    _title(fig, axes, title, given, warning)
+    _title(fig, axes, title, given, warning, remark)
     if failed is not None or not result.converged:
         _stamp(fig, axes, failed)
     elif warning:  # a solution still: its labels kept clear
@@ -438,12 +443,13 @@ def _extent(axes):
             max(b.y1 for b in boxes))
 
 
-def _title(fig, axes, title, given, warning=""):
+def _title(fig, axes, title, given, warning="", remark=""):
     left, _, right, top = _extent(axes)
     top += 0.3 / fig.get_figheight()
     # wrapped to the views' width (about half a point size per character)
     width = max(int((right - left) * fig.get_figwidth() * 72 / (9 * 0.55)), 20)
-    for text, style in ((warning, dict(color="red", weight="bold")), (given, {})):
+    for text, style in ((warning, dict(color="red", weight="bold")),
+                        (remark, dict(color="#1f4e79", style="italic")), (given, {})):
         if text:
             lines = textwrap.wrap(text, width, subsequent_indent="  ")
             fig.text(left, top, "\n".join(lines), fontsize=9, va="bottom", **style)

@@ -19,7 +19,8 @@ from .forward import model_for
 from .inputs import GravityUnknown, Noise, PointForceUnknown, Unknown, check_point_forces
 from .model import Model, Structure, Values
 from .robot import Robot, check_robot
-from .statics import CACHE_SIZE, Drive, Unknowns, terms, unstable
+from .stability import unstable
+from .statics import CACHE_SIZE, Drive, Unknowns, terms
 
 
 @dataclass(frozen=True, eq=False)
@@ -231,7 +232,7 @@ def reduced_jacobians(prob: Problem, x, drive, values: Values, parts=None):
 
 
 def unstable_at(prob: Problem, x, drive, values: Values, parts=None) -> str:
-    """:func:`~tendonsense.statics.unstable` for the solution ``x`` of ``prob`` (its
+    """:func:`~tendonsense.stability.unstable` for the solution ``x`` of ``prob`` (its
     magnitudes held, as dead loads), from the Jacobians the 1-σ band uses (``parts``)."""
     return unstable(values, (jacobians(prob, x, drive, values) if parts is None else parts)[0])
 

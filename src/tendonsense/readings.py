@@ -813,8 +813,8 @@ def sweep_rows(robot: Robot, sets: ParameterSets, result, point_forces=(),
                for v in result.markers[m][k]]
         out += [repr(float(result.displacements[t][k])) if ok else ""
                 for t in robot.tendon_names]
-        shaky = "" if result.unstable is None or not ok else str(
-            bool(result.unstable[k])).lower()
+        shaky = "" if result.unstable is None or not ok else (
+            "true" if result.unstable[k] else "false")
         rows.append(cells + [v for _, v in given] + out
                     + ["true" if ok else "false", shaky, result.notes[k]])
     return header, rows

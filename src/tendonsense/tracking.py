@@ -24,8 +24,9 @@ from .problem import Problem, band, confounded, covariance, misfit_notes  # noqa
 from .result import SampleEstimate, compact_repr, joined
 from .robot import Robot, value_error
 from .sliding import Band, FrictionHistory, labels, turning_program
-from .statics import (UNSTABLE, Drive, Unknowns, preload_stiffness_ratios, shape_outputs,
-                      solve_system, stiffness_ratios, unstable_note)
+from .stability import (is_unstable, preload_stiffness_ratios, stiffness_ratio,
+                        stiffness_ratios, tangent, unstable_note)
+from .statics import Drive, Unknowns, shape_outputs, solve_system
 from .tendons import turns
 
 
@@ -305,8 +306,11 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
 
     ``stability``: each converged sample's equilibrium is checked as
     :func:`~tendonsense.forward.solve` checks its own (an exact Jacobian and an eigenvalue
-    problem a sample, about twice a sample's solve): ``unstable`` marks the shapes the rod
-    would leave for another, and their notes say so (:func:`~tendonsense.statics.unstable`).
+    problem a sample, about as long again as its solve); one the tracker reached at an
+    unstable equilibrium is solved again on its own from the straight rod, as ``solve``
+    (warm-started from a neighbour, the tracker may reach another equilibrium), and that
+    solution kept where it converges. ``unstable`` marks the shapes the rod would leave for
+    another, and their notes say so (:func:`~tendonsense.stability.unstable`).
 
     >>> E = np.linspace(0.8e6, 1.2e6, 1000)
     >>> out = solve_batch(robot, {"t1": np.full(1000, 2.0)}, values={"young_modulus": E})
@@ -335,9 +339,19 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
         return Drive(jnp.asarray(T[rows]), jnp.asarray(F[rows]), jnp.asarray(X[rows]),
                      jnp.asarray(g[rows]), jnp.zeros((len(rows), 0)))
 
-    def ratio_args(rows):  # the chunk's solutions (the straight rod where not converged)
-        return (structure, base, {k: jnp.asarray(v[rows]) for k, v in varied.items()},
-                drive(rows), unknowns, np.where(conv[rows, None], q[rows], 0.0))
+    def params(rows):
+        return {k: jnp.asarray(v[rows]) for k, v in varied.items()}
+
+    def ratio_args(rows, count):  # the chunk's first ``count`` rows, where converged
+        return (structure, base, params(rows), drive(rows), unknowns,
+                np.where(conv[rows, None], q[rows], 0.0), conv[rows] & (np.arange(chunk) < count))
+
+    def alone(k):  # sample k solved on its own from the straight rod, as :func:`solve`
+        v = base._replace(**{name: jnp.asarray(a[k]) for name, a in varied.items()})
+        res = solve_system(structure, v, (), jax.tree_util.tree_map(lambda a: a[0], drive([k])),
+                           unknowns)
+        markers, _, lengths, fine = shape_outputs(structure, v, res.x)
+        return v, res, markers, lengths, bool(res.converged) and bool(fine), bool(fine)
 
     def solve_run(run):
         x0 = np.zeros(structure.nq)
@@ -345,33 +359,40 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
             idx = run[start:start + chunk]
             rows = np.concatenate([idx, np.full(chunk - idx.size, idx[-1])])
             tr = jax.device_get(track(jnp.asarray(x0), drive(rows), unknowns, base,
-                                      {k: jnp.asarray(v[rows]) for k, v in varied.items()}))
+                                      params(rows)))
             for j, k in enumerate(idx):
                 if tr.converged[j]:
                     q[k], mk[k], y[k], conv[k], its[k] = (tr.x[j], tr.markers[j], tr.lengths[j],
                                                           True, tr.iterations[j])
                     continue
-                v = base._replace(**{name: jnp.asarray(a[k]) for name, a in varied.items()})
-                res = solve_system(structure, v, (), jax.tree_util.tree_map(
-                    lambda a: a[0], drive([k])), unknowns)
-                markers, _, lengths, fine = shape_outputs(structure, v, res.x)
-                q[k], mk[k], y[k] = np.asarray(res.x), markers, lengths
-                conv[k], its[k] = bool(res.converged) and bool(fine), int(res.evaluations)
+                _, res, mk[k], y[k], conv[k], fine = alone(k)
+                q[k], its[k] = np.asarray(res.x), int(res.evaluations)
                 if not conv[k]:
-                    notes[k] = why_not(res, bool(fine), robot.numerics.tolerance)
+                    notes[k] = why_not(res, fine, robot.numerics.tolerance)
             if stability:
-                ratio[idx] = stiffness_ratios(*ratio_args(rows))[:idx.size]
+                ratio[idx] = stiffness_ratios(*ratio_args(rows, idx.size))[:idx.size]
+                # warm-started from its neighbour, the tracker may reach another equilibrium
+                # than a solve from the straight rod: where it is unstable, the sample is
+                # solved on its own, and that solution kept where it converges
+                for j in np.flatnonzero(tr.converged[:idx.size] & is_unstable(ratio[idx])):
+                    k = idx[j]
+                    v, res, markers, lengths, ok, _ = alone(k)
+                    if ok:
+                        q[k], mk[k], y[k], its[k] = np.asarray(res.x), markers, lengths, (
+                            its[k] + int(res.evaluations))
+                        ratio[k] = stiffness_ratio(v, tangent(v, res, structure.nq))
             good = np.flatnonzero(conv[idx])
             if good.size:
                 x0 = q[idx[good[-1]]]
 
     if stability:
-        preload_stiffness_ratios(*ratio_args(np.zeros(chunk, int)))
+        preload_stiffness_ratios(*ratio_args(np.zeros(chunk, int), 0))
     with ThreadPoolExecutor(len(runs)) as pool:
         list(pool.map(solve_run, runs))
-    shaky = conv & (ratio < -UNSTABLE) if stability else None
-    for k in np.flatnonzero(shaky) if stability else ():
-        notes[k] = unstable_note(ratio[k])
+    shaky = None
+    if stability:
+        shaky = conv & is_unstable(ratio)
+        notes[shaky] = [unstable_note(r) for r in ratio[shaky]]
     return BatchResult(q, {m: mk[:, i] for i, m in enumerate(robot.marker_names)},
                        {t: y[:, j] for j, t in enumerate(robot.tendon_names)}, conv, its,
                        notes, shaky)
