@@ -12,15 +12,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import inputs, tendons
+from . import inputs, stability, tendons
 from .inputs import PointForce, check_point_forces, finite, tendon_vector  # noqa: F401 (API)
 from .compiled import Program
 from .kinematics import poses
 from .model import Model, material_values
 from .result import Result
 from .robot import Robot, check_robot
-from . import stability
-from .stability import SETTLED_NOTE, tangent, unstable
+from .stability import SETTLED_NOTE, is_unstable, stiffness_ratio, tangent, unstable_note
 from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, derivatives, marker_positions,
                       preload_outputs, shape_outputs, solve_system)
 
@@ -121,25 +120,27 @@ def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
     preload_outputs(model.structure, model.values)  # (as :func:`make_result`)
     res = solve_system(model.structure, values, (), drive, unknowns,
                        inputs.start(q0, model.nq))
-    shaky = unstable(values, tangent(values, res, model.nq)) if bool(res.converged) else ""
-    if settle and (shaky or not bool(res.converged)):
-        return _settled(model, values, drive, unknowns, res, shaky)
+    ratio = stiffness_ratio(values, tangent(values, res, model.nq)) if bool(res.converged) \
+        else np.nan
+    if settle and (is_unstable(ratio) or not bool(res.converged)):
+        return _settled(model, values, drive, unknowns, res, ratio)
+    shaky = unstable_note(ratio)
     return make_result(model, res.x, np.asarray(drive.tensions), res,
                        **({"extra": {"note": shaky}} if shaky else {}))
 
 
 def _settled(model: Model, values, drive: Drive, unknowns: Unknowns, first: NewtonResult,
-             shaky: str) -> Result:
+             ratio: float) -> Result:
     """:func:`solve`'s result where the rod settles from its first solution ``first`` (an
-    unstable equilibrium, ``shaky`` its note, or no solution), Newton's at the end."""
+    unstable equilibrium of stiffness ratio ``ratio``, or no solution: NaN), Newton's at the
+    end."""
     tol = model.robot.numerics.tolerance
     came = stability.settle(model.structure, values, drive, unknowns, np.asarray(first.x), tol)
     res = solve_system(model.structure, values, (), drive, unknowns, came.x)
     res = res._replace(iterations=first.iterations + came.steps + res.iterations,
                        converged=bool(res.converged) and came.converged)
-    found = ("was unstable (stiffness ratio "
-             + shaky.split("stiffness ratio ")[1].split(";")[0] + ")" if shaky
-             else "was not found")
+    found = f"was unstable (stiffness ratio {ratio:.3g})" if is_unstable(ratio) else \
+        "was not found"
     if not bool(res.converged):
         return make_result(model, res.x, np.asarray(drive.tensions), res, why=(
             f"the rod did not come to rest: the equilibrium from the straight rod {found}, "
