@@ -405,6 +405,7 @@ assert estimate(robot, {"t1": -0.005}, {"t1": 2.1}, [PointForceUnknown(0.25, (0,
                 ).converged
 from tendonsense.tracking import solve_batch
 assert solve_batch(robot, {"t1": [2.0, 3.0]}, workers=1, stability=True).converged.all()
+assert solve(robot, {"t1": 10.0}, [(0.25, (0, 0, -1.2))], settle=True).converged
 print(sorted(loads))
 print(sum(len(p._loading) for p in list(compiled._PROGRAMS)))
 """
@@ -412,9 +413,9 @@ print(sum(len(p._loading) for p in list(compiled._PROGRAMS)))
 
 def test_a_first_solve_or_estimate_loads_its_later_programs_meanwhile(tmp_path):
     """In a new process with the programs kept, a solve loads its outputs' program, an
-    estimate its Jacobians' and a batch checked for stability its stiffness ratios' on another
-    thread while its own solver loads and runs; each is loaded once and used (none left
-    waiting: its signature is the call's)."""
+    estimate its Jacobians', a batch checked for stability its stiffness ratios' and a solve
+    that may settle its settling's on another thread while its own solver loads and runs;
+    each is loaded once and used (none left waiting: its signature is the call's)."""
     env = dict(os.environ, TENDONSENSE_CACHE_DIR=str(tmp_path))
     robot = str(Path(__file__).parents[1] / "examples" / "paper_prototype.toml")
     outs = [subprocess.run([sys.executable, "-c", PRELOAD_SCRIPT, robot], env=env,
@@ -426,7 +427,8 @@ def test_a_first_solve_or_estimate_loads_its_later_programs_meanwhile(tmp_path):
              for name, thread in ast.literal_eval(loads)]
     assert loads == sorted([("newton", "MainThread"), ("outputs", ahead),
                             ("newton", "MainThread"), ("jacobians", ahead),
-                            ("tracker", "pool"), ("stiffness_ratios", ahead)]), loads
+                            ("tracker", "pool"), ("stiffness_ratios", ahead),
+                            ("linearised", ahead)]), loads
     assert waiting == "0"
 
 

@@ -118,6 +118,8 @@ def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
     values = sliding_values(robot, model.values, sliding)
     unknowns = Unknowns.none(len(robot.tendons), drive.load_X.shape[0])
     preload_outputs(model.structure, model.values)  # (as :func:`make_result`)
+    if settle:
+        stability.preload_settle(model.structure, values, drive, unknowns, np.zeros(model.nq))
     res = solve_system(model.structure, values, (), drive, unknowns,
                        inputs.start(q0, model.nq))
     ratio = stiffness_ratio(values, tangent(values, res, model.nq)) if bool(res.converged) \

@@ -143,6 +143,13 @@ def _linear_fn(structure: Structure):
         structure, values, drive, unknowns, x), "linearised", structure)
 
 
+def preload_settle(structure: Structure, values: Values, drive: Drive, unknowns: Unknowns,
+                   x) -> None:
+    """:func:`settle`'s program loaded from disk on another thread, ahead of its first call
+    (:meth:`~tendonsense.compiled.Program.preload`)."""
+    _linear_fn(structure).preload(values, drive, unknowns, np.asarray(x, float))
+
+
 #: pseudo-time steps :func:`settle` takes at most, over all its nudges
 SETTLE_STEPS = 1000
 #: the nudge along the unstable mode, relative to ‖q‖ (at least 1)
@@ -174,7 +181,7 @@ def settle(structure: Structure, values: Values, drive: Drive, unknowns: Unknown
     to the unstable shape); once the shape is stable the steps grow into Newton's. Nudged
     again if it comes to rest at another unstable equilibrium."""
     lin = _linear_fn(structure)
-    x = np.asarray(x, float).copy()
+    x = np.array(x, float)
     floor = float(values.energy_floor * np.sqrt(values.young_modulus))
     steps = nudges = 0
     h, v_old, ratio = 1.0, None, 0.0
