@@ -73,7 +73,7 @@ def test_solve_settle_finds_the_state_beyond_the_planar_branch(tmp_path):
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout)
     assert out["converged"] is True and out["note"].startswith(
-        "settled: the equilibrium from the straight rod was not found")
+        "settled: the equilibrium solved for was not found")
     assert abs(out["markers"]["tip"][1]) > 0.03  # out of the plane of its loads (49 mm)
     again = solve(load_robot(robot), {"t1": 6.5}, [(0.25, (0, 0, -1.2))], q0=out["q"])
     assert again.converged and "note" not in again.extra

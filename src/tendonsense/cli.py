@@ -282,10 +282,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sliding", action="append", default=[], type=_forward_direction,
                    metavar="NAME=in|out", help=SLIDING_HELP.format(""))
     p.add_argument("--settle", action="store_true",
-                   help="where the shape found from the straight rod is an unstable "
-                        "equilibrium (or none is found), give the stable state the rod comes "
-                        "to rest in from it instead (it keeps the plane of its loads, the "
-                        "robot may not)")
+                   help="where the shape solved for is an unstable equilibrium (or none is "
+                        "found), give instead the stable state the rod comes to rest in from "
+                        "it (a solve from the straight rod keeps the plane of its loads; the "
+                        "robot may leave it)")
 
     p = command("fk", "shape and tensions from tendon length changes (forward kinematics)",
                 "Compute the rod's shape and the tensions needed for the given tendon length "

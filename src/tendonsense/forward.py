@@ -134,26 +134,31 @@ def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
 def _settled(model: Model, values, drive: Drive, unknowns: Unknowns, first: NewtonResult,
              ratio: float) -> Result:
     """:func:`solve`'s result where the rod settles from its first solution ``first`` (an
-    unstable equilibrium of stiffness ratio ``ratio``, or no solution: NaN), Newton's at the
-    end."""
-    tol = model.robot.numerics.tolerance
-    came = stability.settle(model.structure, values, drive, unknowns, np.asarray(first.x), tol)
+    unstable equilibrium of stiffness ratio ``ratio``, or no solution: NaN): Newton's from
+    where :func:`~tendonsense.stability.settle` stopped, kept where it is stable."""
+    came = stability.settle(model.structure, values, drive, unknowns, np.asarray(first.x),
+                            model.robot.numerics.tolerance)
     res = solve_system(model.structure, values, (), drive, unknowns, came.x)
+    at_rest = stiffness_ratio(values, tangent(values, res, model.nq)) if bool(res.converged) \
+        else np.nan
     res = res._replace(iterations=first.iterations + came.steps + res.iterations,
-                       converged=bool(res.converged) and came.converged)
+                       converged=bool(res.converged) and not is_unstable(at_rest))
     found = f"was unstable (stiffness ratio {ratio:.3g})" if is_unstable(ratio) else \
         "was not found"
+    how = (f"nudged along its unstable mode, {came.steps} pseudo-time steps" if came.nudges
+           else f"{came.steps} pseudo-time steps")
     if not bool(res.converged):
-        return make_result(model, res.x, np.asarray(drive.tensions), res, why=(
-            f"the rod did not come to rest: the equilibrium from the straight rod {found}, "
-            f"and {came.steps} pseudo-time steps from it "
-            f"({came.nudges} nudge{'' if came.nudges == 1 else 's'} along an unstable mode) "
-            f"reached no stable one (stiffness ratio {came.ratio:.3g} where they stopped)"))
+        why = (f"the rod did not come to rest: the equilibrium solved for {found}, and "
+               f"{came.steps} pseudo-time steps of the damped rod from it "
+               f"({came.nudges} nudge{'' if came.nudges == 1 else 's'} along an unstable "
+               f"mode) reached no stable equilibrium")
+        return make_result(model, res.x, np.asarray(drive.tensions), res, why=why,
+                           extra={"note": why})
     return make_result(model, res.x, np.asarray(drive.tensions), res, extra={"note": (
-        f"{SETTLED_NOTE}: the equilibrium from the straight rod {found}; this is the stable state "
-        f"the rod comes to rest in from it, nudged along its unstable mode ({came.steps} "
-        f"pseudo-time steps; the opposite nudge may rest in another state: the mirror image "
-        f"where the loads lie in a plane)")})
+        f"{SETTLED_NOTE}: the equilibrium solved for {found}; this is the stable state the "
+        f"rod comes to rest in from it ({how}; "
+        f"another start may rest in another state, e.g. the mirror image where the loads lie "
+        f"in a plane)")})
 
 
 def forward_kinematics(robot: Robot, displacements: Mapping[str, float],

@@ -161,8 +161,8 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     warning = ("UNSTABLE EQUILIBRIUM: the rod would leave this shape for another"
                if failed is None and result.converged
                and UNSTABLE_NOTE in result.extra.get("note", "") else "")
-    remark = ("SETTLED: the stable state the rod comes to rest in from the equilibrium found "
-              "first (the mirror image is another where the loads lie in a plane)"
+    remark = ("SETTLED: the stable state the damped rod comes to rest in (the equilibrium "
+              "solved for was unstable or not found; see the note)"
               if failed is None and result.converged
               and result.extra.get("note", "").startswith(SETTLED_NOTE) else "")
     n_title = bool(title) + bool(given) + bool(warning) + bool(remark)

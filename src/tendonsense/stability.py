@@ -156,6 +156,9 @@ SETTLE_STEPS = 1000
 NUDGE = 1e-3
 #: the local error of a pseudo-time step, relative to ‖q‖ (at least 1)
 STEP_ERROR = 0.02
+#: a step after which the residual is more than GROWTH times as large is taken again shorter
+#: (leaving an unstable shape, a step of 1 / (2|λ|) doubles the departure)
+GROWTH = 4.0
 
 
 class Settled(NamedTuple):
@@ -178,19 +181,24 @@ def settle(structure: Structure, values: Values, drive: Drive, unknowns: Unknown
     ``τ E K q̇ = −E(q)`` (eq. 7's residual), followed by linearly implicit Euler steps
     (pseudo-transient continuation), exact Jacobians: each step's length set by its local
     error, and below ``1 / (2|λ|)`` while a mode λ < 0 is unstable (a longer step would return
-    to the unstable shape); once the shape is stable the steps grow into Newton's. Nudged
-    again if it comes to rest at another unstable equilibrium."""
+    to the unstable shape); once the shape is stable the steps grow into Newton's; a step after
+    which the residual grows more than :data:`GROWTH` times is taken again a quarter as long.
+    Nudged again if it comes to rest at another unstable equilibrium."""
     lin = _linear_fn(structure)
     x = np.array(x, float)
     floor = float(values.energy_floor * np.sqrt(values.young_modulus))
     steps = nudges = 0
-    h, v_old, ratio = 1.0, None, 0.0
+    h, v_old, ratio, before = 1.0, None, 0.0, None
     while steps < max_steps:
         r, size, J, L_inv = (np.asarray(a) for a in lin(values, drive, unknowns, x))
-        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
+        finite = np.all(np.isfinite(r)) and np.all(np.isfinite(J))
+        if before is not None and not (finite and np.linalg.norm(r) <= GROWTH * before[1]):
+            # the step left the motion (its linearisation): again, a quarter as long
+            x, h, v_old, before = before[0], before[2] / 4, None, None
+            continue
+        if not finite:
             break
-        # (E K)⁻¹ ∂E/∂q up to a similarity: its eigenvalues are the stiffness ratios
-        lam, V = np.linalg.eig(L_inv.T @ J)
+        lam, V = np.linalg.eig(L_inv.T @ J)  # (E K)⁻¹ ∂E/∂q: the stiffness ratios
         worst = int(np.argmin(lam.real))
         ratio = float(lam.real[worst])
         if np.linalg.norm(r) <= tolerance * (float(size) + floor):
@@ -199,7 +207,7 @@ def settle(structure: Structure, values: Values, drive: Drive, unknowns: Unknown
             u = np.real(V[:, worst])
             u = u * np.sign(u[np.argmax(np.abs(u))]) / np.linalg.norm(u)
             x = x + NUDGE * max(np.linalg.norm(x), 1.0) * u
-            nudges, h, v_old = nudges + 1, 1.0, None
+            nudges, h, v_old, before = nudges + 1, 1.0, None, None
             continue
         if ratio < 0:
             h = min(h, 0.5 / -ratio)
@@ -209,5 +217,6 @@ def settle(structure: Structure, values: Values, drive: Drive, unknowns: Unknown
             err = 0.5 * h * np.linalg.norm(dx / h - v_old)
             h_next = h * min(4.0, max(0.5, np.sqrt(STEP_ERROR * max(np.linalg.norm(x), 1.0)
                                                    / max(err, 1e-300))))
+        before = (x, np.linalg.norm(r), h)
         x, v_old, h, steps = x + dx, dx / h, min(h_next, 1e12), steps + 1
     return Settled(x, False, steps, nudges, ratio)

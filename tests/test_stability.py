@@ -1,0 +1,39 @@
+"""Where the rod settles from an unstable or unfound equilibrium (``solve(..., settle=True)``,
+:mod:`tendonsense.stability`): what a settled result and a failed settling say. The checks
+against the elastica and the damped motion are in test_closed_form.py and test_dynamics.py."""
+
+import numpy as np
+
+from tendonsense.forward import solve
+
+
+def _stable_there(robot, tensions, forces, result, sliding=None):
+    again = solve(robot, tensions, forces, q0=result.q, sliding=sliding)
+    return again.converged and "note" not in again.extra and np.allclose(again.q, result.q,
+                                                                        rtol=0, atol=1e-8)
+
+
+def test_a_step_that_leaves_the_motion_is_taken_again_shorter(prototype):
+    """t1 = 20 N paid out with 2 N at the tip: no equilibrium solved for; the pseudo-time
+    steps, grown into Newton's near a stable state, threw it away and cycled every 440 steps
+    (reported NOT CONVERGED at a point whose own re-solve is stable); a step after which the
+    residual grows more than fourfold is now taken again shorter, and the result is judged at
+    Newton's point: converged, stable there, and its note says no nudge was made."""
+    tensions, forces, out = {"t1": 20.0}, [(0.25, (0.0, 0.0, -2.0))], {"t1": "out"}
+    assert not solve(prototype, tensions, forces, sliding=out).converged
+    res = solve(prototype, tensions, forces, sliding=out, settle=True)
+    assert res.converged and res.extra["note"].startswith(
+        "settled: the equilibrium solved for was not found")
+    assert "nudged" not in res.extra["note"]
+    assert _stable_there(prototype, tensions, forces, res, out)
+
+
+def test_a_rod_that_does_not_come_to_rest_is_not_converged(prototype):
+    """t1 = 10 N paid out with 0.5 N at the tip: neither the solve nor 1000 steps of the
+    damped rod find a stable equilibrium; the result says so (not converged, the note says
+    settling was tried and why it failed)."""
+    res = solve(prototype, {"t1": 10.0}, [(0.25, (0.0, 0.0, -0.5))], sliding={"t1": "out"},
+                settle=True)
+    assert not res.converged
+    assert "the rod did not come to rest" in res.extra["note"]
+    assert "1000 pseudo-time steps" in res.extra["note"]
