@@ -204,8 +204,9 @@ def settle(structure: Structure, values: Values, drive: Drive, unknowns: Unknown
         if np.linalg.norm(r) <= tolerance * (float(size) + floor):
             if not is_unstable(ratio):
                 return Settled(x, True, steps, nudges, ratio)
-            u = np.real(V[:, worst])
-            u = u * np.sign(u[np.argmax(np.abs(u))]) / np.linalg.norm(u)
+            v = V[:, worst]  # turned so that its largest component is real and positive
+            u = np.real(v * np.conj(v[np.argmax(np.abs(v))]))
+            u = u / np.linalg.norm(u)
             x = x + NUDGE * max(np.linalg.norm(x), 1.0) * u
             nudges, h, v_old, before = nudges + 1, 1.0, None, None
             continue
