@@ -382,7 +382,7 @@ def test_a_sweep_marks_the_sets_at_unstable_equilibria(where, client, prototype,
     """The prototype with 1.2 N hanging at its tip: at t1 = 10 N its planar shape is one the
     rod leaves (test_dynamics), at 3 N not — the sweep says so as solve does (column
     unstable, the note, a count; a sweep said converged without a word); --skip-stability
-    leaves the column blank."""
+    leaves the column blank; --settle gives the state it comes to rest in."""
     from tendonsense.forward import solve
     (tmp_path / "sets.csv").write_text("id,tension_t1,load_X,load_fx,load_fy,load_fz\n"
                                        "a,3.0,0.25,0,0,-1.2\nb,10.0,0.25,0,0,-1.2\n")
@@ -406,6 +406,19 @@ def test_a_sweep_marks_the_sets_at_unstable_equilibria(where, client, prototype,
                      "--quiet", "--skip-stability", *extra]) == 0
     assert json.loads(capsys.readouterr().out)["unstable"] is None
     assert {r["unstable"] for r in csv.DictReader(open(out))} == {""}
+    # --settle: the unstable set is the state the rod comes to rest in, as solve --settle
+    assert cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", out, "--json",
+                     "--quiet", "--settle", *extra]) == 0
+    assert json.loads(capsys.readouterr().out) | {"output": ""} == {
+        "sets": 2, "converged": 2, "unstable": 0, "settled": 1, "output": ""}
+    rows = list(csv.DictReader(open(out)))
+    assert [(r["converged"], r["unstable"]) for r in rows] == [("true", "false")] * 2
+    held = solve(prototype, {"t1": 10.0}, [(0.25, (0, 0, -1.2))], settle=True)
+    assert rows[1]["solver_note"] == held.extra["note"] and rows[0]["solver_note"] == ""
+    np.testing.assert_allclose([float(rows[1][f"marker_tip_{a}"]) for a in "xyz"],
+                               held.markers["tip"], rtol=0, atol=1e-9)
+    assert cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", out, "--settle",
+                     "--skip-stability", *extra]) == 2
 
 
 def test_a_set_with_no_solution_is_marked_with_why(tmp_path, capsys):

@@ -296,3 +296,5 @@ def test_a_batch_checked_for_stability_says_what_solve_says(prototype):
         assert out.unstable[k] == said.startswith("unstable equilibrium"), (t1[k], said)
         assert re.findall(r"ratio (\S+);", out.notes[k]) == re.findall(r"ratio (\S+);", said)
     assert out.unstable.sum() == 4  # 8.3, 8.7, 9 and 10 N with these E, ν and μ
+    with pytest.raises(ValueError, match="settle needs the stability check"):
+        solve_batch(prototype, {"t1": t1}, hang, settle=True)

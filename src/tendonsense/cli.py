@@ -510,6 +510,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--skip-stability", action="store_true",
                    help="do not check whether each set's equilibrium is stable (column "
                         "unstable left blank; a large sweep takes about half the time)")
+    p.add_argument("--settle", action="store_true",
+                   help="a set whose equilibrium is unstable (or not found) is instead the "
+                        "stable state the rod comes to rest in from it, as solve --settle")
     _cluster_options(p, "the sets")
     p.add_argument("--task-size", type=int, metavar="N",
                    help="with --workers or --scheduler: sets per task (default 1000)")
@@ -630,6 +633,9 @@ def _check(args, robot) -> None:
     elif cmd == "sweep":
         from .readings import read_parameter_sets
         _check_cluster(args)
+        if args.settle and args.skip_stability:
+            raise UsageError("tendonsense sweep: --settle needs the stability check (not "
+                             "--skip-stability): it settles the sets found unstable")
         if args.task_size is not None:
             if args.workers is None and args.scheduler is None:
                 raise UsageError("tendonsense sweep: --task-size goes with --workers or "
@@ -1767,6 +1773,7 @@ def _sweep(args, robot) -> bool:
     on a Dask cluster (:func:`tendonsense.distributed.solve_batch`); RESULTS.csv written
     atomically."""
     from .readings import sweep_rows, write_csv_atomic
+    from .stability import SETTLED_NOTE
     sets = args.sets_read
     forces = _point_forces(args) + sets.loads
     with _on_cluster(args) as client:  # before the bar's thread: a local cluster may fork
@@ -1775,25 +1782,30 @@ def _sweep(args, robot) -> bool:
             if client is None:
                 from .tracking import solve_batch
                 out = solve_batch(robot, sets.tensions, forces, sets.values,
-                                  sliding=args.sliding, stability=not args.skip_stability)
+                                  sliding=args.sliding, stability=not args.skip_stability,
+                                  settle=args.settle)
             else:
                 from .distributed import TASK_SIZE, solve_batch
                 out = solve_batch(client, robot, sets.tensions, forces, sets.values,
                                   args.task_size or TASK_SIZE, prog, sliding=args.sliding,
-                                  stability=not args.skip_stability)
+                                  stability=not args.skip_stability, settle=args.settle)
         finally:
             prog.close()
     write_csv_atomic(args.results, *sweep_rows(robot, sets, out, _point_forces(args),
                                                args.sliding))
     n, good = len(sets.rows), int(out.converged.sum())
     shaky = None if out.unstable is None else int(out.unstable.sum())
+    rested = int(sum(str(note).startswith(SETTLED_NOTE) for note in out.notes))
     if args.json:
         print(json.dumps({"sets": n, "converged": good, "unstable": shaky,
+                          **({"settled": rested} if args.settle else {}),
                           "output": str(args.results)}))
     else:
         print(f"solved {n} parameter set{'' if n == 1 else 's'}: {good} converged"
               + (f", {shaky} of them at unstable equilibria (the rod would leave those "
                  f"shapes: column unstable, and their solver_note)" if shaky else "")
+              + (f", {rested} settled (the state the rod comes to rest in from an unstable "
+                 f"or unfound one: their solver_note)" if rested else "")
               + f"; wrote {args.results}")
     return good == n
 

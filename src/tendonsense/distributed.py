@@ -174,21 +174,21 @@ def task_chunks(n: int, task_size: int = TASK_SIZE) -> list[np.ndarray]:
 
 def solve_chunk(robot: Robot, T: np.ndarray, X: np.ndarray, F: np.ndarray,
                 values: Mapping[str, np.ndarray], sliding: Mapping[str, str] | None = None,
-                stability: bool = False) -> BatchResult:
+                stability: bool = False, settle: bool = False) -> BatchResult:
     """One task of :func:`solve_batch`: :func:`tendonsense.tracking.solve_batch` over
     tensions ``T`` (n, n_t), point forces at ``X`` (n, n_p) of ``F`` (n, n_p, 3), the
-    varied ``values``, the tendons' ``sliding`` and whether to check ``stability``, on one
-    thread."""
+    varied ``values``, the tendons' ``sliding``, whether to check ``stability`` and to
+    ``settle``, on one thread."""
     from .tracking import solve_batch as solve_local
     forces = [(X[:, i], F[:, i]) for i in range(X.shape[1])]
     return solve_local(robot, T, forces, dict(values), workers=1, sliding=sliding,
-                       stability=stability)
+                       stability=stability, settle=settle)
 
 
 def solve_batch(client, robot: Robot, tensions, point_forces: Sequence = (),
                 values: Mapping[str, object] | None = None, task_size: int = TASK_SIZE,
                 progress: Progress | None = None, sliding: Mapping[str, str] | None = None,
-                stability: bool = False) -> BatchResult:
+                stability: bool = False, settle: bool = False) -> BatchResult:
     """:func:`tendonsense.tracking.solve_batch` over a cluster (``client``; ``None``: this
     process): the same arguments, checked here; the batch ordered along its first principal
     direction and cut into chunks of ``task_size`` samples (:func:`task_chunks`), each chunk a
@@ -212,13 +212,15 @@ def solve_batch(client, robot: Robot, tensions, point_forces: Sequence = (),
     if n == 0:
         raise ValueError("batch: no samples")
     signed_friction(robot, base, varied, n, sliding)  # its rules, before anything is sent
+    if settle and not stability:
+        raise ValueError("batch: settle needs the stability check (stability=True)")
     # neighbours along the batch's first principal direction share a task, so that each
     # warm-starts the next as in one process
     order = principal_order(np.concatenate(
         [T, X, F.reshape(n, -1), *(v.reshape(n, -1) for v in varied.values())], axis=1))
     chunks = [order[c] for c in task_chunks(n, task_size)]
     tasks = [(robot, T[c], X[c], F[c], {k: np.ascontiguousarray(v[c]) for k, v in varied.items()},
-              dict(sliding or {}), stability) for c in chunks]
+              dict(sliding or {}), stability, settle) for c in chunks]
     parts = _run(client, solve_chunk, tasks, progress)
     for part in parts:
         if isinstance(part, Exception):

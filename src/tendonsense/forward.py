@@ -125,23 +125,24 @@ def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
     ratio = stiffness_ratio(values, tangent(values, res, model.nq)) if bool(res.converged) \
         else np.nan
     if settle and (is_unstable(ratio) or not bool(res.converged)):
-        return _settled(model, values, drive, unknowns, res, ratio)
+        return settled(model, values, drive, unknowns, res.x, int(res.iterations), ratio)
     shaky = unstable_note(ratio)
     return make_result(model, res.x, np.asarray(drive.tensions), res,
                        **({"extra": {"note": shaky}} if shaky else {}))
 
 
-def _settled(model: Model, values, drive: Drive, unknowns: Unknowns, first: NewtonResult,
-             ratio: float) -> Result:
-    """:func:`solve`'s result where the rod settles from its first solution ``first`` (an
-    unstable equilibrium of stiffness ratio ``ratio``, or no solution: NaN): Newton's from
-    where :func:`~tendonsense.stability.settle` stopped, kept where it is stable."""
-    came = stability.settle(model.structure, values, drive, unknowns, np.asarray(first.x),
+def settled(model: Model, values, drive: Drive, unknowns: Unknowns, x, iterations: int,
+            ratio: float) -> Result:
+    """:func:`solve`'s result where the rod settles from its first solution ``x`` (an
+    unstable equilibrium of stiffness ratio ``ratio``, or no solution: NaN; found in
+    ``iterations``) with the ``values`` it was solved with: Newton's from where
+    :func:`~tendonsense.stability.settle` stopped, kept where it is stable."""
+    came = stability.settle(model.structure, values, drive, unknowns, np.asarray(x, float),
                             model.robot.numerics.tolerance)
     res = solve_system(model.structure, values, (), drive, unknowns, came.x)
     at_rest = stiffness_ratio(values, tangent(values, res, model.nq)) if bool(res.converged) \
         else np.nan
-    res = res._replace(iterations=first.iterations + came.steps + res.iterations,
+    res = res._replace(iterations=iterations + came.steps + res.iterations,
                        converged=bool(res.converged) and not is_unstable(at_rest))
     found = f"was unstable (stiffness ratio {ratio:.3g})" if is_unstable(ratio) else \
         "was not found"

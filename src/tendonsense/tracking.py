@@ -15,7 +15,7 @@ import numpy as np
 from .estimation import estimate_problem
 from .fastpath import (MAX_EVALUATIONS, MAX_JACOBIANS, Carry, Track,  # noqa: F401 (API)
                        follower, stacked_drives, tracker)
-from .forward import model_for, sliding_values, why_not
+from .forward import model_for, settled, sliding_values, why_not
 from .inputs import (Noise, check_noise, first_force_error, force_pairs, friction_signs,
                      max_tension, tendon_vector, tension_error)
 from .model import VALUE_NAMES
@@ -289,7 +289,7 @@ class BatchResult:
 def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
                 values: Mapping[str, object] | None = None, chunk: int = 100,
                 workers: int = 2, sliding: Mapping[str, str] | None = None,
-                stability: bool = False) -> BatchResult:
+                stability: bool = False, settle: bool = False) -> BatchResult:
     """Forward statics over a batch of tensions, point loads and values, for sweeps and Monte
     Carlo: one compiled program per robot structure, whatever the numbers.
 
@@ -312,6 +312,10 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     solution kept where it converges. ``unstable`` marks the shapes the rod would leave for
     another, and their notes say so (:func:`~tendonsense.stability.unstable`).
 
+    ``settle`` (with ``stability``): such a sample, or one not solved, is instead the stable
+    state the rod comes to rest in from it, as ``solve(..., settle=True)`` gives (its note
+    says so; ~0.01–0.5 s a sample); it warm-starts no other.
+
     >>> E = np.linspace(0.8e6, 1.2e6, 1000)
     >>> out = solve_batch(robot, {"t1": np.full(1000, 2.0)}, values={"young_modulus": E})
     >>> out.markers["tip"].shape, bool(out.converged.all())
@@ -324,6 +328,8 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     n, n_t = T.shape
     if n == 0:
         raise ValueError("batch: no samples")
+    if settle and not stability:
+        raise ValueError("batch: settle needs the stability check (stability=True)")
     varied = signed_friction(robot, base, varied, n, sliding)
     g = np.broadcast_to(np.asarray(robot.gravity, float), (n, 3))
     unknowns = Unknowns.none(n_t, X.shape[1])
@@ -333,7 +339,7 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     runs = [r for r in np.array_split(principal_order(features), max(1, workers)) if r.size]
     q, mk = np.zeros((n, structure.nq)), np.zeros((n, len(robot.markers), 3))
     y, conv, its = np.zeros((n, n_t)), np.zeros(n, bool), np.zeros(n, int)
-    notes, ratio = np.full(n, "", object), np.full(n, np.nan)
+    notes, ratio, rested = np.full(n, "", object), np.full(n, np.nan), np.zeros(n, bool)
 
     def drive(rows):
         return Drive(jnp.asarray(T[rows]), jnp.asarray(F[rows]), jnp.asarray(X[rows]),
@@ -346,10 +352,13 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
         return (structure, base, params(rows), drive(rows), unknowns,
                 np.where(conv[rows, None], q[rows], 0.0), conv[rows] & (np.arange(chunk) < count))
 
+    def one(k):  # sample k's values and drive
+        return (base._replace(**{name: jnp.asarray(a[k]) for name, a in varied.items()}),
+                jax.tree_util.tree_map(lambda a: a[0], drive([k])))
+
     def alone(k):  # sample k solved on its own from the straight rod, as :func:`solve`
-        v = base._replace(**{name: jnp.asarray(a[k]) for name, a in varied.items()})
-        res = solve_system(structure, v, (), jax.tree_util.tree_map(lambda a: a[0], drive([k])),
-                           unknowns)
+        v, d = one(k)
+        res = solve_system(structure, v, (), d, unknowns)
         markers, _, lengths, fine = shape_outputs(structure, v, res.x)
         return v, res, markers, lengths, bool(res.converged) and bool(fine), bool(fine)
 
@@ -381,7 +390,13 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
                         q[k], mk[k], y[k], its[k] = np.asarray(res.x), markers, lengths, (
                             its[k] + int(res.evaluations))
                         ratio[k] = stiffness_ratio(v, tangent(v, res, structure.nq))
-            good = np.flatnonzero(conv[idx])
+            for k in idx[(~conv[idx] | is_unstable(ratio[idx])) if settle else []]:
+                came = settled(model, *one(k), unknowns, q[k], its[k], ratio[k])
+                q[k], conv[k], its[k], ratio[k] = came.q, came.converged, came.iterations, np.nan
+                mk[k] = [came.markers[m] for m in robot.marker_names]
+                y[k] = [came.displacements[t] for t in robot.tendon_names]
+                notes[k], rested[k] = came.extra["note"], True
+            good = np.flatnonzero(conv[idx] & ~rested[idx])  # a settled state starts no other
             if good.size:
                 x0 = q[idx[good[-1]]]
 
