@@ -32,7 +32,8 @@ SETTLED_NOTE = "settled"
 
 def tangent(values: Values, res: NewtonResult, nq: int) -> np.ndarray:
     """``∂E/∂q`` (unscaled, eq. 7) at a Newton solution, from the Jacobian of its scaled
-    residual (:func:`~tendonsense.statics.residual`: ``J_qq = L⁻¹ ∂E/∂q / √E``, ``K = L Lᵀ``)."""
+    residual (:func:`~tendonsense.statics.residual`: ``J_qq = L⁻¹ ∂E/∂q / √E``,
+    ``K = L Lᵀ``)."""
     L = np.linalg.cholesky(np.asarray(values.stiffness(), float))
     return np.sqrt(float(values.young_modulus)) * L @ np.asarray(res.jacobian, float)[:nq, :nq]
 
