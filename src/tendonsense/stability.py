@@ -169,7 +169,6 @@ class Settled(NamedTuple):
     converged: bool  # at rest (equilibrium to the solver's tolerance) and stable
     steps: int  # pseudo-time steps taken
     nudges: int  # nudges along an unstable mode
-    ratio: float  # :func:`stiffness_ratio` where it stopped
 
 
 def settle(structure: Structure, values: Values, drive: Drive, unknowns: Unknowns, x,
@@ -189,7 +188,7 @@ def settle(structure: Structure, values: Values, drive: Drive, unknowns: Unknown
     x = np.array(x, float)
     floor = float(values.energy_floor * np.sqrt(values.young_modulus))
     steps = nudges = 0
-    h, v_old, ratio, before = 1.0, None, 0.0, None
+    h, v_old, before = 1.0, None, None
     while steps < max_steps:
         r, size, J, L_inv = (np.asarray(a) for a in lin(values, drive, unknowns, x))
         finite = np.all(np.isfinite(r)) and np.all(np.isfinite(J))
@@ -204,7 +203,7 @@ def settle(structure: Structure, values: Values, drive: Drive, unknowns: Unknown
         ratio = float(lam.real[worst])
         if np.linalg.norm(r) <= tolerance * (float(size) + floor):
             if not is_unstable(ratio):
-                return Settled(x, True, steps, nudges, ratio)
+                return Settled(x, True, steps, nudges)
             v = V[:, worst]  # turned so that its largest component is real and positive
             u = np.real(v * np.conj(v[np.argmax(np.abs(v))]))
             u = u / np.linalg.norm(u)
@@ -221,4 +220,4 @@ def settle(structure: Structure, values: Values, drive: Drive, unknowns: Unknown
                                                    / max(err, 1e-300))))
         before = (x, np.linalg.norm(r), h)
         x, v_old, h, steps = x + dx, dx / h, min(h_next, 1e12), steps + 1
-    return Settled(x, False, steps, nudges, ratio)
+    return Settled(x, False, steps, nudges)
