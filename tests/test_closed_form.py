@@ -122,3 +122,41 @@ def test_a_column_past_eulers_load_settles_in_the_elastica():
     assert tip[0] == pytest.approx((2 * ellipe(m) - ellipk(m)) / lam, rel=1e-3)  # 1.3e-4
     again = solve(robot, point_forces=[(L, (-P, 0.0, 0.0))], q0=res.q)
     assert again.converged and "note" not in again.extra  # stable: no note
+
+
+@pytest.mark.parametrize("turn, tube, touches", [(1.0, 0.01, False), (1.9, 0.01, True),
+                                                 (1.9, 0.007, False), (2.2, 0.001, True)])
+def test_a_ring_of_the_rod_passes_through_itself_where_its_ends_meet(turn, tube, touches):
+    """A centre line bent into an arc of radius ρ turning ``turn`` half-turns: its ends are
+    2ρ sin(θ/2) apart, and past a half-turn the rod passes through itself where that is less
+    than its diameter; a straight rod never does."""
+    from tendonsense.rod import overlap
+    rho = 0.05
+    X = np.linspace(0.0, rho * turn * np.pi, 201)
+    th = X / rho
+    P = np.stack([rho * np.sin(th), 0 * th, rho * (1 - np.cos(th))], axis=1)
+    found = overlap(P, X, np.full(X.size, tube))
+    assert (found is not None) == touches
+    if touches and turn < 2:  # the deepest at the ends, exactly
+        assert (found.X, found.X_other) == (0.0, X[-1])
+        assert found.distance == pytest.approx(2 * rho * np.sin(turn * np.pi / 2), rel=1e-12)
+        assert found.reach == pytest.approx(2 * tube)
+    assert overlap(np.stack([X, 0 * X, 0 * X], axis=1), X, np.full(X.size, 0.1)) is None
+
+
+@pytest.mark.parametrize("pitch", [0.015, 0.025])
+def test_a_coil_passes_through_itself_where_its_turns_are_closer_than_its_diameter(pitch):
+    """A helical centre line of pitch p: each turn lies p from the next, so a rod of radius
+    r = 0.01 passes through itself when p < 2r, there about p apart, and not otherwise."""
+    from tendonsense.rod import overlap
+    R, r = 0.03, 0.01
+    th = np.linspace(0.0, 3 * 2 * np.pi, 601)
+    X = th * np.hypot(R, pitch / (2 * np.pi))
+    P = np.stack([R * np.cos(th), R * np.sin(th), pitch * th / (2 * np.pi)], axis=1)
+    found = overlap(P, X, np.full(X.size, r))
+    if pitch > 2 * r:
+        assert found is None
+    else:
+        assert 0.98 * pitch <= found.distance <= pitch and found.reach == pytest.approx(2 * r)
+        assert found.X_other - found.X == pytest.approx(2 * np.pi * np.hypot(
+            R, pitch / (2 * np.pi)), rel=0.02)

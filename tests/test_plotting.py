@@ -294,3 +294,36 @@ def test_a_simulation_figure_leaves_out_failed_samples_and_keeps_its_time_axis(m
     assert kept[-1].axes[1].yaxis.get_offset_text().get_text() == ""
     for f in kept:
         plt.close(f)
+
+
+def test_a_shape_that_passes_through_itself_is_said_and_stamped():
+    """The model has no contact: paper_simulation pulled at 20 N curls its tip into its base
+    (a solution of the model's equations the robot cannot take): the note and the figure say
+    so, in red; 2 N does not. Every line above the views stays inside the figure when the
+    warning takes two lines (it is unstable as well at 6.9 N with 1.2 N at the tip)."""
+    from pathlib import Path
+
+    from tendonsense import load_robot
+    from tendonsense.forward import THROUGH_ITSELF
+    robot = load_robot(Path(__file__).resolve().parents[1] / "examples" /
+                       "paper_simulation.toml")
+    curled, bent = (solve(robot, {"t1": t}) for t in (20.0, 2.0))
+    assert curled.converged and THROUGH_ITSELF in curled.extra["note"]
+    assert "X = 0 m" in curled.extra["note"] and THROUGH_ITSELF not in bent.extra.get("note", "")
+    fig = plotting.shape_figure(curled, robot)
+    said = " ".join(t.get_text() for t in fig.texts)
+    assert "PASSES THROUGH ITSELF" in said and "NOT CONVERGED" not in said
+    assert {ax.spines["top"].get_edgecolor() for ax in fig.axes[:2]} == {(1.0, 0.0, 0.0, 1.0)}
+    for ax in fig.axes[:2]:  # the two places ringed in red
+        rings = [c for c in ax.collections if c.get_offsets().shape == (2, 2)
+                 and tuple(c.get_edgecolor()[0]) == (1.0, 0.0, 0.0, 1.0)]
+        assert len(rings) == 1
+    both = solve(robot, {"t1": 6.9}, [(0.25, (0.0, 0.0, -1.2))])
+    fig = plotting.shape_figure(both, robot)
+    said = [t for t in fig.texts if "UNSTABLE" in t.get_text()]
+    assert said and "PASSES THROUGH ITSELF" in said[0].get_text()
+    assert said[0].get_text().count("\n") >= 1
+    renderer = fig.canvas.get_renderer()
+    for t in fig.texts:
+        box = t.get_window_extent(renderer)
+        assert box.y1 <= fig.bbox.y1 and box.x1 <= fig.bbox.x1, t.get_text()

@@ -17,8 +17,9 @@ from .inputs import PointForce, check_point_forces, finite, tendon_vector  # noq
 from .compiled import Program
 from .kinematics import poses
 from .model import Model, material_values
-from .result import Result
+from .result import Result, joined
 from .robot import Robot, check_robot
+from .rod import overlap
 from .stability import SETTLED_NOTE, is_unstable, stiffness_ratio, tangent, unstable_note
 from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, derivatives, marker_positions,
                       preload_outputs, shape_outputs, solve_system)
@@ -28,6 +29,8 @@ from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, derivatives, ma
 TENSION_TOL = 1e-9
 #: why a solution that satisfies the equations is not reported as converged
 INADMISSIBLE = "strain outside the model's range (a fibre compressed to nothing)"
+#: the note of a solution whose shape passes through itself
+THROUGH_ITSELF = "the shape passes through itself"
 
 
 def model_for(robot: Robot) -> Model:
@@ -69,12 +72,28 @@ def make_result(model: Model, x, tensions, res: NewtonResult, why: str | None = 
         note = extra.get("extra", {}).get("note")
         extra["extra"] = {**extra.get("extra", {}),
                           "note": why if not note or why in note else f"{why}; {note}"}
+    elif crossing := through_itself(robot, backbone):
+        extra["extra"] = {**extra.get("extra", {}), "note": joined(
+            extra.get("extra", {}).get("note"), crossing)}
     return Result(
         q=q, tensions=dict(zip(robot.tendon_names, map(float, tensions))),
         displacements=dict(zip(robot.tendon_names, map(float, y))),
         markers={m: markers[i] for i, m in enumerate(robot.marker_names)}, backbone=backbone,
         converged=bool(res.converged) and bool(fine), iterations=int(res.iterations),
         residual=float(res.residual), **extra)
+
+
+def through_itself(robot: Robot, backbone) -> str:
+    """A note where the shape of centre line ``backbone`` (from base to tip, evenly spaced)
+    passes through itself (:func:`~tendonsense.rod.overlap`), or ''."""
+    X = np.linspace(0.0, robot.rod.length, len(backbone))
+    where = overlap(backbone, X, robot.rod.radius(X))
+    if where is None:
+        return ""
+    return (f"{THROUGH_ITSELF}: its centre line at X = {where.X:.4g} m is "
+            f"{where.distance * 1e3:.3g} mm from itself at X = {where.X_other:.4g} m, closer "
+            f"than the rod's radii there together ({where.reach * 1e3:.3g} mm); the model has "
+            f"no contact, so the robot cannot take this shape")
 
 
 def _statics_drive(robot: Robot, tensions, point_forces) -> Drive:
@@ -152,7 +171,8 @@ def settled(model: Model, values, drive: Drive, unknowns: Unknowns, x, iteration
         why = (f"the rod did not come to rest: the equilibrium solved for {found}, and "
                f"{came.steps} pseudo-time steps of the damped rod from it "
                f"({came.nudges} nudge{'' if came.nudges == 1 else 's'} along an unstable "
-               f"mode) reached no stable equilibrium")
+               f"mode) reached no stable equilibrium"
+               + (f": {came.why}" if came.why else ""))
         return make_result(model, res.x, np.asarray(drive.tensions), res, why=why,
                            extra={"note": why})
     return make_result(model, res.x, np.asarray(drive.tensions), res, extra={"note": (

@@ -23,12 +23,13 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.textpath import TextPath  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
-from .forward import model_for  # noqa: E402
+from .forward import THROUGH_ITSELF, model_for  # noqa: E402
 from .inputs import EDGE, friction_signs, parameter_words  # noqa: E402
 from .kinematics import frames_fn  # noqa: E402
 from .readings import write_bytes_atomic  # noqa: E402
-from .result import Result  # noqa: E402
+from .result import Result, joined  # noqa: E402
 from .robot import Robot  # noqa: E402
+from .rod import overlap  # noqa: E402
 from .stability import SETTLED_NOTE, UNSTABLE_NOTE  # noqa: E402
 from .tendons import turning_along  # noqa: E402
 from .units import GF, between, newtons, spread  # noqa: E402
@@ -158,20 +159,27 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     fig = Figure()
     FigureCanvasAgg(fig)
     axes, cax = [fig.add_axes((0, 0, 1, 1)) for _ in VIEWS], fig.add_axes((0, 0, 1, 1))
-    warning = ("UNSTABLE EQUILIBRIUM: the rod would leave this shape for another"
-               if failed is None and result.converged
-               and UNSTABLE_NOTE in result.extra.get("note", "") else "")
+    note = result.extra.get("note", "") if failed is None and result.converged else ""
+    Xb = np.linspace(0.0, L, len(backbone))
+    where = overlap(result.backbone, Xb, robot.rod.radius(Xb)) if THROUGH_ITSELF in note \
+        else None
+    crossing = None if where is None else np.array(
+        [[np.interp(x, Xb, backbone[:, c]) for c in range(3)] for x in where[:2]])
+    warning = joined("UNSTABLE EQUILIBRIUM: the rod would leave this shape for another"
+                     if UNSTABLE_NOTE in note else "",
+                     "PASSES THROUGH ITSELF: the model has no contact, the robot cannot take "
+                     "this shape" if THROUGH_ITSELF in note else "")
     remark = ("SETTLED: the stable state the damped rod comes to rest in (the equilibrium "
               "solved for was unstable or not found; see the note)"
               if failed is None and result.converged
               and result.extra.get("note", "").startswith(SETTLED_NOTE) else "")
-    n_title = bool(title) + bool(given) + bool(warning) + bool(remark)
+    texts = (title, given, warning, remark)
     tmax = max([T for _, T, _, along in tendons for T in (T, *along)], default=0.0)
     norm = Normalize(0.0, tmax if tmax > 0 else 1.0)
     bar_names = _bar_names(tendons, norm.vmax)
     names_in = max([TextPath((0, 0), n, size=8).get_extents().width / 72
                     for _, n in bar_names], default=0.0)
-    pt_per_mm = 72 * _place(fig, axes, cax, lo, hi, n_title, names_in)
+    pt_per_mm = 72 * _place(fig, axes, cax, lo, hi, texts, names_in)
     X_of = {m.name: m.X for m in robot.markers}
     for view, (ax, (name, i, j)) in enumerate(zip(axes, VIEWS)):
         ax.set_title(name, loc="left", fontsize=9)
@@ -204,10 +212,13 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
         if measured:
             ax.scatter(*_points(measured)[:, [i, j]].T, s=45, marker="x", color=MEASURED,
                        lw=1.8, zorder=5)
+        if crossing is not None:
+            ax.scatter(crossing[:, i], crossing[:, j], s=260, fc="none", ec="red", lw=1.8,
+                       zorder=6)
     for _ in range(3):
         _separate(fig, axes)
         lo, hi = _fit_text(fig, axes, lo, hi)
-        _place(fig, axes, cax, lo, hi, n_title, names_in)
+        _place(fig, axes, cax, lo, hi, texts, names_in)
     if axes[0].get_position().y0 > axes[1].get_position().y1:
         axes[0].tick_params(labelbottom=False)
     else:
@@ -217,7 +228,7 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
         _tension_bar(fig, cax, norm, bar_names)
     else:
         cax.remove()
-    _legend(fig, axes, tendons, markers, measured, loads)
+    _legend(fig, axes, tendons, markers, measured, loads, crossing is not None)
     _title(fig, axes, title, given, warning, remark)
     if failed is not None or not result.converged:
         _stamp(fig, axes, failed)
@@ -241,10 +252,11 @@ def _limits(pts):
     return lo - pad, hi + pad
 
 
-def _place(fig, axes, cax, lo, hi, n_title, names_in=0.0) -> float:
+def _place(fig, axes, cax, lo, hi, texts, names_in=0.0) -> float:
     """Size the figure and place the views at one scale (stacked or side by side, whichever
-    is larger), with the limits ``lo``, ``hi`` (mm, global x y z), and the colour bar with
-    ``names_in`` inches of names on its left; the scale in inches per mm."""
+    is larger), with the limits ``lo``, ``hi`` (mm, global x y z), room above them for
+    ``texts`` (:func:`_title`'s) and the colour bar with ``names_in`` inches of names on its
+    left; the scale in inches per mm."""
     (_, i, j), (_, _, k) = VIEWS
     span = hi - lo
     ex, ez, ey = span[i], span[j], span[k]
@@ -259,7 +271,7 @@ def _place(fig, axes, cax, lo, hi, n_title, names_in=0.0) -> float:
         w, h = 2 * ex * s + gw, max(ez, ey) * s
         boxes = [(0, h - ez * s, ex * s, ez * s), (ex * s + gw, h - ey * s, ex * s, ey * s)]
     m, bar = MARGIN_IN, max(0.35, names_in + 0.15)
-    fw, fh = m["left"] + w + bar + m["right"], m["bottom"] + h + m["top"] + 0.25 * n_title
+    fw, fh = m["left"] + w + bar + m["right"], m["bottom"] + h + m["top"] + _head_in(w, *texts)
     fig.set_size_inches(fw, fh)
     for ax, (x, y, bw, bh), (_, a, b) in zip(axes, boxes, VIEWS):
         ax.set_position(((m["left"] + x) / fw, (m["bottom"] + y) / fh, bw / fw, bh / fh))
@@ -410,7 +422,7 @@ def _tension_bar(fig, cax, norm, names):
     left.set_yticks([T for T, _ in names], [n for _, n in names], fontsize=8)
 
 
-def _legend(fig, axes, tendons, markers, measured, loads):
+def _legend(fig, axes, tendons, markers, measured, loads, crossing=False):
     h = [Line2D([], [], color=REST, ls="--", label="unloaded rod"),
          Line2D([], [], color="black", lw=2.5, label="backbone"),
          Line2D([], [], color="black", marker="s", ls="none", label="clamped base")]
@@ -430,6 +442,9 @@ def _legend(fig, axes, tendons, markers, measured, loads):
     for colour, what in ((KNOWN, "known force"), (ESTIMATED, estimated)):
         if any(c == colour for *_, c in loads):
             h.append(Line2D([], [], color=colour, lw=2, marker=">", label=what))
+    if crossing:
+        h.append(Line2D([], [], marker="o", ms=12, mfc="none", mec="red", mew=1.8, ls="none",
+                        label="passes through itself"))
     left, bottom, right, _ = _extent(axes)
     ncol = 4 if (right - left) * fig.get_figwidth() > 5 else 2
     fig.legend(handles=h, loc="upper center", ncol=ncol, fontsize=8, frameon=False,
@@ -443,15 +458,25 @@ def _extent(axes):
             max(b.y1 for b in boxes))
 
 
+def _wrapped(text: str, width_in: float) -> list[str]:
+    """``text``'s lines above views ``width_in`` inches wide (a 9-point line holds about
+    twice as many characters as it is wide in points / 9)."""
+    return textwrap.wrap(text, max(int(width_in * 72 / (9 * 0.55)), 20), subsequent_indent="  ")
+
+
+def _head_in(width_in, title, given, warning="", remark="") -> float:
+    """Inches :func:`_title` takes above views ``width_in`` wide."""
+    return 0.25 * bool(title) + sum(0.1 + 0.16 * len(_wrapped(t, width_in))
+                                    for t in (given, warning, remark) if t)
+
+
 def _title(fig, axes, title, given, warning="", remark=""):
     left, _, right, top = _extent(axes)
     top += 0.3 / fig.get_figheight()
-    # wrapped to the views' width (about half a point size per character)
-    width = max(int((right - left) * fig.get_figwidth() * 72 / (9 * 0.55)), 20)
     for text, style in ((warning, dict(color="red", weight="bold")),
                         (remark, dict(color="#1f4e79", style="italic")), (given, {})):
         if text:
-            lines = textwrap.wrap(text, width, subsequent_indent="  ")
+            lines = _wrapped(text, (right - left) * fig.get_figwidth())
             fig.text(left, top, "\n".join(lines), fontsize=9, va="bottom", **style)
             top += (0.1 + 0.16 * len(lines)) / fig.get_figheight()
     if title:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -37,3 +38,39 @@ def section(r):
     """Area ``A = π r²`` and second moment of area ``I = π r⁴ / 4`` of a circular section of
     radius ``r`` (NumPy or JAX): ``Σ = diag(2 G I, E I, E I, E A, G A, G A)`` (eq. 8a)."""
     return np.pi * r**2, np.pi * r**4 / 4.0
+
+
+class Overlap(NamedTuple):
+    """Where a rod's shape passes through itself (:func:`overlap`): the centre line at ``X``
+    and at ``X_other`` (m, ``X < X_other``) is ``distance`` apart, less than the radii
+    there together (``reach``), both in m."""
+
+    X: float
+    X_other: float
+    distance: float
+    reach: float
+
+
+def overlap(points, X, radius) -> Overlap | None:
+    """The deepest place where a rod of centre line ``points`` (n, 3) at arc lengths ``X``
+    (n,), of radius ``radius`` (n,) there, passes through itself, or None. Two parts of the
+    rod touch where their centre lines are closer than their radii together; parts that
+    follow each other along the rod are always that close, so a point is compared only with
+    the rod beyond its distance's first maximum along it each way (where the rod has turned
+    back towards it)."""
+    P, X, r = (np.asarray(a, float) for a in (points, X, radius))
+    D = np.linalg.norm(P[:, None, :] - P[None, :, :], axis=-1)
+    gap = D - (r[:, None] + r[None, :])
+    best = None
+    for i in range(len(P) - 2):
+        d = D[i, i:]
+        falls = np.flatnonzero(np.diff(d) < 0)  # the first maximum, going away from i
+        if not falls.size:
+            continue
+        j = i + falls[0] + int(np.argmin(gap[i, i + falls[0]:]))
+        if gap[i, j] < 0 and (best is None or gap[i, j] < best[0]):
+            best = (gap[i, j], i, j)
+    if best is None:
+        return None
+    _, i, j = best
+    return Overlap(float(X[i]), float(X[j]), float(D[i, j]), float(r[i] + r[j]))

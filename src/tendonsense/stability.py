@@ -157,9 +157,16 @@ SETTLE_STEPS = 1000
 NUDGE = 1e-3
 #: the local error of a pseudo-time step, relative to ‖q‖ (at least 1)
 STEP_ERROR = 0.02
-#: a step after which the residual is more than GROWTH times as large is taken again shorter
-#: (leaving an unstable shape, a step of 1 / (2|λ|) doubles the departure)
+#: a step from a stable shape after which the residual is more than GROWTH times as large is
+#: taken again shorter (one leaving an unstable shape may grow it: its length is capped)
 GROWTH = 4.0
+#: a pseudo-time step that must be shorter than this to stay in the model's range ends
+#: :func:`settle` (the motion leaves the model there, e.g. a tendon between two disks or a
+#: fibre compressed to nothing)
+SHORTEST = 1e-9
+#: why :func:`settle` stopped short of its steps where the rod's motion left the model
+LEFT_THE_MODEL = ("the motion left the model's range (its equations have no value just "
+                  "beyond: e.g. a tendon between two disks or a fibre compressed to nothing)")
 
 
 class Settled(NamedTuple):
@@ -169,6 +176,7 @@ class Settled(NamedTuple):
     converged: bool  # at rest (equilibrium to the solver's tolerance) and stable
     steps: int  # pseudo-time steps taken
     nudges: int  # nudges along an unstable mode
+    why: str = ""  # why it stopped before its last step without coming to rest, or ''
 
 
 def settle(structure: Structure, values: Values, drive: Drive, unknowns: Unknowns, x,
@@ -181,8 +189,10 @@ def settle(structure: Structure, values: Values, drive: Drive, unknowns: Unknown
     ``τ E K q̇ = −E(q)`` (eq. 7's residual), followed by linearly implicit Euler steps
     (pseudo-transient continuation), exact Jacobians: each step's length set by its local
     error, and below ``1 / (2|λ|)`` while a mode λ < 0 is unstable (a longer step would return
-    to the unstable shape); once the shape is stable the steps grow into Newton's; a step after
-    which the residual grows more than :data:`GROWTH` times is taken again a quarter as long.
+    to the unstable shape); once the shape is stable the steps grow into Newton's, and one
+    after which the residual grows more than :data:`GROWTH` times is taken again a quarter as
+    long, as is a step to where the equations have no value
+    (:data:`LEFT_THE_MODEL` where it would have to be shorter than :data:`SHORTEST`).
     Nudged again if it comes to rest at another unstable equilibrium."""
     lin = _linear_fn(structure)
     x = np.array(x, float)
@@ -192,12 +202,15 @@ def settle(structure: Structure, values: Values, drive: Drive, unknowns: Unknown
     while steps < max_steps:
         r, size, J, L_inv = (np.asarray(a) for a in lin(values, drive, unknowns, x))
         finite = np.all(np.isfinite(r)) and np.all(np.isfinite(J))
-        if before is not None and not (finite and np.linalg.norm(r) <= GROWTH * before[1]):
+        if before is not None and not (finite and (np.linalg.norm(r) <= GROWTH * before[1]
+                                                   or before[3] < 0)):
             # the step left the motion (its linearisation): again, a quarter as long
             x, h, v_old, before = before[0], before[2] / 4, None, None
+            if h < SHORTEST:
+                return Settled(x, False, steps, nudges, LEFT_THE_MODEL)
             continue
         if not finite:
-            break
+            return Settled(x, False, steps, nudges, LEFT_THE_MODEL)
         lam, V = np.linalg.eig(L_inv.T @ J)  # (E K)⁻¹ ∂E/∂q: the stiffness ratios
         worst = int(np.argmin(lam.real))
         ratio = float(lam.real[worst])
@@ -218,6 +231,6 @@ def settle(structure: Structure, values: Values, drive: Drive, unknowns: Unknown
             err = 0.5 * h * np.linalg.norm(dx / h - v_old)
             h_next = h * min(4.0, max(0.5, np.sqrt(STEP_ERROR * max(np.linalg.norm(x), 1.0)
                                                    / max(err, 1e-300))))
-        before = (x, np.linalg.norm(r), h)
+        before = (x, np.linalg.norm(r), h, ratio)
         x, v_old, h, steps = x + dx, dx / h, min(h_next, 1e12), steps + 1
     return Settled(x, False, steps, nudges)
