@@ -79,3 +79,15 @@ def test_solve_settle_finds_the_state_beyond_the_planar_branch(tmp_path):
     assert again.converged and "note" not in again.extra
     assert again.markers["tip"] == pytest.approx(out["markers"]["tip"], abs=1e-9)
     assert fig.stat().st_size > 10_000
+
+
+def test_a_figures_given_line_says_each_known_forces_direction():
+    """"given: … 0.2 N known force at X = 0.25 m along (0, 0, -1)": the direction, not the
+    size alone (a force up and one down read the same before)."""
+    from types import SimpleNamespace
+
+    from tendonsense.cli import _given
+    args = SimpleNamespace(displacement={}, tension={"t1": 2.0}, sliding={},
+                           point_force=[(0.25, 0.0, 0.0, -0.2), (0.1, 0.0, 0.3, 0.4)])
+    assert _given(args) == ("given: t1 tension 2 N, 0.2 N known force at X = 0.25 m along "
+                            "(0, 0, -1), 0.5 N known force at X = 0.1 m along (0, 0.6, 0.8)")

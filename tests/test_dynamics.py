@@ -261,3 +261,20 @@ def test_simulate_writes_a_readings_log_the_estimator_reads(tmp_path):
     rigid.write_text(robot_to_toml(_with_damping(robot, 0.0)))
     r = _cli("simulate", rigid, "--no-inertia", "--duration", 0.1, "-o", tmp_path / "y.csv")
     assert r.returncode == 1 and "damping" in r.stderr
+
+
+def test_a_step_far_too_long_is_not_tried_again_after_it_fails():
+    """``max_step`` 0.5 s on the damped prototype (τ = 30 ms; seconds typed for milliseconds):
+    the first step fails and is halved; every later sample tried the 0.5 s step again (its
+    tip 15 mm off a fine run at the end; at 2 s for 3 s of motion, minutes), where now no
+    step is longer than half the one that failed: within 1 mm of the fine run."""
+    import warnings
+
+    from tendonsense.simulation import simulate
+    robot = load_robot(ROOT / "examples" / "paper_prototype_damped.toml")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (the coarse step's warning)
+        coarse = simulate(robot, {"t1": 2.0}, duration=0.5, output_dt=0.01, max_step=0.5)
+    fine = simulate(robot, {"t1": 2.0}, duration=0.5, output_dt=0.01)
+    assert coarse.converged.all()
+    assert np.abs(coarse.markers["tip"][-1] - fine.markers["tip"][-1]).max() < 1e-3

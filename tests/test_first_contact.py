@@ -1658,3 +1658,16 @@ def test_a_fit_of_a_force_no_measured_tendon_sees_is_no_estimate():
     r = estimate(robot, y, T, [PointForceUnknown(0.25, (0, 1, 0))])
     assert not r.converged and np.isinf(r.sigma[0])
     assert "measured tendons (a, b) do not change length with unknown 1" in r.extra["note"]
+
+
+def test_a_modulus_in_kilopascals_says_the_strain_is_large(prototype):
+    """E typed in kPa (1000 for 1 MPa, the softest modulus a robot file takes) hangs the
+    prototype 94 % longer than it is under its own weight, converged: the note says the strain
+    is far beyond what the model's linear elasticity holds and asks for the units; the paper's
+    loads (a few per cent) say nothing."""
+    res = solve(prototype.with_parameters(young_modulus=1000.0))
+    assert res.converged and res.extra["note"].startswith(
+        "large strain: the centre line is 94% longer than the rod at rest")
+    assert "Young's modulus in Pa" in res.extra["note"]
+    for pull in (2.0, 5.0):
+        assert "large strain" not in solve(prototype, {"t1": pull}).extra.get("note", "")

@@ -165,6 +165,21 @@ def test_failed_results_are_stamped(solved, prototype, failed):
     assert (failed in stamp) if failed else len(stamp) == 1
 
 
+def test_the_stamp_and_its_reason_stay_inside_the_view(solved, prototype):
+    """A long reason is wrapped to the view it is stamped on: it once ran past the view's
+    left edge over the axis label ("z (mm)" read "z nm")."""
+    why = ("the solver stopped after 106 iterations (its load continuation's stages "
+           "included) at relative residual 3.95e-03 (tolerance 1e-10)")
+    fig = plotting.shape_figure(solved, prototype, failed=why)
+    renderer = fig.canvas.get_renderer()
+    view = fig.axes[0].get_window_extent(renderer)
+    for t in fig.texts:
+        if "NOT CONVERGED" in t.get_text() or "solver stopped" in t.get_text():
+            box = t.get_window_extent(renderer)
+            assert view.x0 - 1 <= box.x0 and box.x1 <= view.x1 + 1, t.get_text()
+    plt.close(fig)
+
+
 def test_an_unstable_equilibrium_is_stamped(prototype):
     """A solution the robot would leave (10 N with 1.2 N hanging at the tip: out of the plane
     of its loads, tests/test_dynamics.py) is drawn saying so; a stable one is not, and the

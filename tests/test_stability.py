@@ -49,3 +49,22 @@ def test_a_rod_that_does_not_come_to_rest_is_not_converged(prototype):
     assert "the rod did not come to rest" in res.extra["note"]
     assert res.extra["note"].endswith(LEFT_THE_MODEL)
     assert f"{SETTLE_STEPS} pseudo-time steps" not in res.extra["note"]
+
+
+def test_an_estimate_at_an_unstable_shape_suggests_the_forces_direction(prototype):
+    """Readings of the rod settled out of the plane of its loads (t1 = 10 N, 1.2 N hanging at
+    the tip): a force estimated along the given direction from t1 alone lands on the planar,
+    unstable shape and misreads it (0.84 N); its note says so and suggests three unknowns
+    along x, y, z with three tendons' readings, which recover the force from the same
+    readings."""
+    from tendonsense.estimation import PointForceUnknown, estimate
+    rest = solve(prototype, {"t1": 10.0}, [(0.25, (0.0, 0.0, -1.2))], settle=True)
+    assert rest.converged
+    one = estimate(prototype, {"t1": rest.displacements["t1"]}, {"t1": 10.0},
+                   [PointForceUnknown(0.25, (0.0, 0.0, -1.0))])
+    assert one.converged and abs(one.magnitudes[0] - 1.2) > 0.2
+    assert UNSTABLE_NOTE in one.extra["note"] and "--unknown X,0,1,0" in one.extra["note"]
+    three = estimate(prototype, rest.displacements, rest.tensions,
+                     [PointForceUnknown(0.25, d) for d in np.eye(3)])
+    assert three.converged and UNSTABLE_NOTE not in three.extra.get("note", "")
+    assert np.allclose(three.magnitudes, [0.0, 0.0, -1.2], atol=1e-6)

@@ -1005,8 +1005,9 @@ def _given(args) -> str:
 
 
 def _forces_text(args) -> list[str]:
-    return [f"{np.linalg.norm(f):.3g} N known force at X = {X:g} m"
-            for X, f in _point_forces(args)]
+    return [f"{np.linalg.norm(f):.3g} N known force at X = {X:g} m along "
+            f"{_vector(np.asarray(f, float) / np.linalg.norm(f))}" if np.any(f) else
+            f"a zero known force at X = {X:g} m" for X, f in _point_forces(args)]
 
 
 def _plot_shape(args, robot, result, unknowns=()):

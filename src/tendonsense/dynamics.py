@@ -327,33 +327,39 @@ def integrator(structure: Structure, inertia: bool):
             return State(s.t + h, q, v, a[1], lu, band), ok
 
         def advance(c, t_end):
-            """Steps of ``h_max`` (a failing one retried in halves) until the newest state
-            passes t_end; (the last two states, whether every step converged)."""
+            """Steps until the newest state passes t_end, from the last sample's next step
+            length (``h_max`` at first): a failing step is retried in halves, and no later
+            step is longer than half of it (a step that failed once fails again: a run of
+            steps far too long, e.g. seconds for milliseconds, retried each sample, took
+            minutes), a good one is followed by one twice as long, at most that; (the last
+            two states, the next step's length and the longest, whether every step
+            converged)."""
             def cond(c):
-                s, _, h, halvings = c
+                s, _, h, top, halvings = c
                 return (s.t < t_end - 1e-9 * h_max) & (halvings <= MAX_HALVINGS)
 
             def body(c):
-                s, prev, h, halvings = c
+                s, prev, h, top, halvings = c
                 new, good = step(s, h)
                 keep = s._replace(lu=new.lu)
                 pick = lambda a, b: jax.tree_util.tree_map(  # noqa: E731
                     lambda x, y: jnp.where(good, x, y), a, b)
-                h_next = jnp.where(good, jnp.minimum(2 * h, h_max), h / 2)
+                top = jnp.where(good, top, jnp.minimum(top, h / 2))
+                h_next = jnp.where(good, jnp.minimum(2 * h, top), h / 2)
                 halvings = jnp.where(good, jnp.maximum(halvings - 1, 0), halvings + 1)
-                return pick(new, keep), pick(s, prev), h_next, halvings
+                return pick(new, keep), pick(s, prev), h_next, top, halvings
 
-            s, prev = c
-            s, prev, _, halvings = jax.lax.while_loop(cond, body,
-                                                      (s, prev, h_max, jnp.asarray(0)))
+            s, prev, h, top = c
+            s, prev, h, top, halvings = jax.lax.while_loop(
+                cond, body, (s, prev, h, top, jnp.asarray(0)))
             ok = halvings <= MAX_HALVINGS
             # a sample that failed: the run goes on from the last state, marked
             prev = jax.tree_util.tree_map(lambda x, y: jnp.where(ok, x, y), prev, s)
             s = s._replace(t=jnp.where(ok, s.t, t_end))
-            return (s, prev), ok
+            return (s, prev, h, top), ok
 
         def sample(c, t_end):
-            (s, prev), ok = advance(c, t_end)
+            (s, prev, h, top), ok = advance(c, t_end)
             q, v = _hermite(prev, s, t_end)
             grid, mk = poses(values, q, points_at(structure, values, values.marker_X))
             _, state = schedule.friction(prev.band, values.friction, t_end)
@@ -361,9 +367,10 @@ def integrator(structure: Structure, inertia: bool):
             out = (q, v, positions(mk, values.marker_offsets),
                    length_changes(structure, values, grid, q),
                    ok & jnp.all(jnp.isfinite(q)), admissible(values, q), state)
-            return (s, prev), out
+            return (s, prev, h, top), out
 
-        (state, _), out = jax.lax.scan(sample, (state, state), times)
+        h0 = jnp.asarray(h_max, float)
+        (state, *_), out = jax.lax.scan(sample, (state, state, h0, h0), times)
         return state, out
 
     def start(q, v, t, h, schedule: Schedule, values: Values):

@@ -31,6 +31,8 @@ TENSION_TOL = 1e-9
 INADMISSIBLE = "strain outside the model's range (a fibre compressed to nothing)"
 #: the note of a solution whose shape passes through itself
 THROUGH_ITSELF = "the shape passes through itself"
+#: a centre line longer or shorter than the rod by more than this share of it is noted
+LARGE_STRAIN = 0.25
 
 
 def model_for(robot: Robot) -> Model:
@@ -72,9 +74,9 @@ def make_result(model: Model, x, tensions, res: NewtonResult, why: str | None = 
         note = extra.get("extra", {}).get("note")
         extra["extra"] = {**extra.get("extra", {}),
                           "note": why if not note or why in note else f"{why}; {note}"}
-    elif crossing := through_itself(robot, backbone):
+    elif remarks := joined(through_itself(robot, backbone), large_strain(robot, backbone)):
         extra["extra"] = {**extra.get("extra", {}), "note": joined(
-            extra.get("extra", {}).get("note"), crossing)}
+            extra.get("extra", {}).get("note"), remarks)}
     return Result(
         q=q, tensions=dict(zip(robot.tendon_names, map(float, tensions))),
         displacements=dict(zip(robot.tendon_names, map(float, y))),
@@ -94,6 +96,19 @@ def through_itself(robot: Robot, backbone) -> str:
             f"{where.distance * 1e3:.3g} mm from itself at X = {where.X_other:.4g} m, closer "
             f"than the rod's radii there together ({where.reach * 1e3:.3g} mm); the model has "
             f"no contact, so the robot cannot take this shape")
+
+
+def large_strain(robot: Robot, backbone) -> str:
+    """A note where the centre line ``backbone`` is longer or shorter than the rod at rest by
+    more than :data:`LARGE_STRAIN` of it, or ''."""
+    change = np.linalg.norm(np.diff(np.asarray(backbone, float), axis=0), axis=1).sum() \
+        / robot.rod.length - 1.0
+    if abs(change) <= LARGE_STRAIN:
+        return ""
+    return (f"large strain: the centre line is {abs(change):.0%} "
+            f"{'longer' if change > 0 else 'shorter'} than the rod at rest (the model's linear "
+            f"elasticity holds for strains of a few per cent; are the values in SI units, "
+            f"Young's modulus in Pa?)")
 
 
 def _statics_drive(robot: Robot, tensions, point_forces) -> Drive:

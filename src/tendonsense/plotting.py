@@ -495,13 +495,15 @@ def _stamp(fig, axes, failed):
     left, bottom, right, top = _extent(axes[:1])  # on the first view, clear of the others
     width = (right - left) * fig.get_figwidth() * 72
     x, y = (left + right) / 2, (bottom + top) / 2
-    fig.text(x, y, "NOT CONVERGED", fontsize=float(np.clip(width / (0.75 * 13), 14, 40)),
+    fig.text(x, y, "NOT CONVERGED", fontsize=float(np.clip(width / (0.85 * 13), 14, 40)),
              color="red", weight="bold", ha="center", va="bottom" if failed else "center",
              alpha=0.8, zorder=10, bbox=dict(fc="white", ec="red", lw=2, alpha=0.5))
-    if failed:
-        fig.text(x, y - 0.08 / fig.get_figheight(), failed, color="red", ha="center", va="top",
-                 fontsize=float(np.clip(width / (0.55 * len(failed)), 8, 14)), zorder=10,
-                 wrap=True, bbox=dict(fc="white", ec="none", alpha=0.85))
+    if failed:  # wrapped to the view's width (about 0.55 of the point size per character)
+        size = float(np.clip(width / (0.55 * len(failed)), 8, 14))
+        fig.text(x, y - 0.08 / fig.get_figheight(),
+                 "\n".join(textwrap.wrap(failed, max(int(0.9 * width / (0.55 * size)), 20))),
+                 color="red", ha="center", va="top", fontsize=size, zorder=10,
+                 bbox=dict(fc="white", ec="none", alpha=0.85))
 
 
 def sensitivity_single(rows, path):
