@@ -83,10 +83,11 @@ def test_paid_out_at_a_high_load_has_two_equilibria(prototype):
     """At 2.4 N paid out with 0.3 N down on the tip the rod curls hard (35.6 mm of t1 taken
     up, most of it the rod's compression under the tension grown toward the tip). The model
     still agrees with the BVP (load steps from a coarse mesh each) once the elements are
-    halved, but that reading has a second equilibrium: the estimate from the straight rod
-    finds the rod curled up with 1.8 N pushing up on the tip, and from the true shape 0.3 N;
-    the estimate says the reading is ambiguous (found again from the shape without the
-    unknown load)."""
+    halved, but that reading has a second equilibrium: the rod curled up with 1.8 N pushing
+    up on the tip (an estimate started there finds it, one from the true shape 0.3 N). Which
+    one an estimate from the straight rod lands on depends on its path (on one machine's
+    rounding the curled one, on another's the true one); where it is the curled one, it says
+    the reading is ambiguous (found again from the shape without the unknown load)."""
     inner = tuple(x for x in prototype.tendons[0].disks if 0 < x < prototype.rod.length)
     cuts = (0.0, *inner, prototype.rod.length)
     halved = prototype.replace(strain=ELEMENTS, elements=tuple(sorted(
@@ -101,11 +102,17 @@ def test_paid_out_at_a_high_load_has_two_equilibria(prototype):
     y = ref.tendon_length_changes()["t1"]
     assert y < -0.03 and abs(gvs.displacements["t1"] - y) < 5e-5
     unknown = [PointForceUnknown(0.25, (0, 0, -1))]
+    up = solve(halved, {"t1": 2.4}, [(0.25, (0.0, 0.0, 1.8))], sliding={"t1": "out"})
+    curled = estimate(halved, {"t1": y}, {"t1": 2.4}, unknown, sliding={"t1": "out"},
+                      x0=np.concatenate([up.q, [-1.8]]))
+    assert curled.converged and curled.magnitudes[0] < -1.5 and curled.markers["tip"][2] > 0.1
     plain = estimate(halved, {"t1": y}, {"t1": 2.4}, unknown, sliding={"t1": "out"})
-    assert plain.converged and plain.magnitudes[0] < -1.5 and plain.markers["tip"][2] > 0.1
-    # ... and says that the reading is ambiguous, with the other equilibrium
-    assert "ambiguous" in plain.extra["note"]
-    assert abs(plain.extra["other_estimate"]["magnitudes"][0] / 0.3 - 1) < 5e-3
+    assert plain.converged
+    if plain.magnitudes[0] < -1.5:  # the curled one: says the reading is ambiguous
+        assert "ambiguous" in plain.extra["note"]
+        assert abs(plain.extra["other_estimate"]["magnitudes"][0] / 0.3 - 1) < 5e-3
+    else:
+        assert abs(plain.magnitudes[0] / 0.3 - 1) < 5e-3
     pulled = estimate(halved, {"t1": y}, {"t1": 2.4}, unknown)
     assert "other_estimate" not in pulled.extra  # only a paid-out reading is searched twice
     started = estimate(halved, {"t1": y}, {"t1": 2.4}, unknown, sliding={"t1": "out"},
