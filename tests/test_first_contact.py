@@ -1671,3 +1671,11 @@ def test_a_modulus_in_kilopascals_says_the_strain_is_large(prototype):
     assert "Young's modulus in Pa" in res.extra["note"]
     for pull in (2.0, 5.0):
         assert "large strain" not in solve(prototype, {"t1": pull}).extra.get("note", "")
+
+
+def test_a_tension_the_rod_cannot_bear_names_a_modulus_too_soft_for_a_rubber(prototype):
+    """E typed in kPa (1000) with a 2 N pull: the tension's message blamed the tension alone;
+    it names E too where E is softer than any silicone rubber (and not otherwise)."""
+    said = inputs.tension_error(prototype, "t1", 2.0, young_modulus=1000.0)
+    assert "tensions are in newtons, and Young's modulus in Pa (E = 1000 Pa here" in said
+    assert "Young's modulus" not in inputs.tension_error(prototype, "t1", 204.0)

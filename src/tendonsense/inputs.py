@@ -109,6 +109,11 @@ def max_tension(robot: Robot, name: str, young_modulus=None):
     return MAX_COMPRESSION * E * thinnest_sections(robot)[name]
 
 
+#: Pa: a Young's modulus below this (softer than silicone rubbers, ~50 kPa and up) names
+#: itself beside a tension the rod cannot bear (E typed in kPa or MPa?)
+SOFTEST_RUBBER = 1e4
+
+
 def tension_error(robot: Robot, name: str, T: float, young_modulus: float | None = None
                   ) -> str | None:
     """Why tension ``T`` (N) of the robot's tendon ``name`` cannot be a reading, or None.
@@ -121,8 +126,11 @@ def tension_error(robot: Robot, name: str, T: float, young_modulus: float | None
     if T < 0:
         return f"tension {name} = {T:g} N is negative (a tendon cannot push; slack is 0)"
     if T > (top := max_tension(robot, name, young_modulus)):
+        E = robot.rod.young_modulus if young_modulus is None else young_modulus
         return (f"tension {name} = {T:g} N would shorten the rod by more than half where it is "
-                f"thinnest {_in_stiffness('T', T, top)}: tensions are in newtons")
+                f"thinnest {_in_stiffness('T', T, top)}: tensions are in newtons"
+                + (f", and Young's modulus in Pa (E = {E:g} Pa here, softer than silicone "
+                   f"rubbers)" if E < SOFTEST_RUBBER else ""))
     return None
 
 
