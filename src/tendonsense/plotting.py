@@ -459,8 +459,8 @@ def _extent(axes):
 
 
 def _wrapped(text: str, width_in: float) -> list[str]:
-    """``text``'s lines above views ``width_in`` inches wide (a 9-point line holds about
-    twice as many characters as it is wide in points / 9)."""
+    """``text``'s lines above views ``width_in`` inches wide (9-point characters, each about
+    0.55 of the point size wide)."""
     return textwrap.wrap(text, max(int(width_in * 72 / (9 * 0.55)), 20), subsequent_indent="  ")
 
 

@@ -161,12 +161,13 @@ STEP_ERROR = 0.02
 #: taken again shorter (one leaving an unstable shape may grow it: its length is capped)
 GROWTH = 4.0
 #: a pseudo-time step that must be shorter than this to stay in the model's range ends
-#: :func:`settle` (the motion leaves the model there, e.g. a tendon between two disks or a
-#: fibre compressed to nothing)
+#: :func:`settle` (the motion leaves the model there, e.g. two disks of a tendon meet or a
+#: fibre is compressed to nothing)
 SHORTEST = 1e-9
 #: why :func:`settle` stopped short of its steps where the rod's motion left the model
 LEFT_THE_MODEL = ("the motion left the model's range (its equations have no value just "
-                  "beyond: e.g. a tendon between two disks or a fibre compressed to nothing)")
+                  "beyond: e.g. two disks of a tendon meet, or a fibre is compressed to "
+                  "nothing)")
 
 
 class Settled(NamedTuple):
