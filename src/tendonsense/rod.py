@@ -59,18 +59,13 @@ def overlap(points, X, radius) -> Overlap | None:
     the rod beyond its distance's first maximum along it each way (where the rod has turned
     back towards it)."""
     P, X, r = (np.asarray(a, float) for a in (points, X, radius))
+    n = len(P)
     D = np.linalg.norm(P[:, None, :] - P[None, :, :], axis=-1)
-    gap = D - (r[:, None] + r[None, :])
-    best = None
-    for i in range(len(P) - 2):
-        d = D[i, i:]
-        falls = np.flatnonzero(np.diff(d) < 0)  # the first maximum, going away from i
-        if not falls.size:
-            continue
-        j = i + falls[0] + int(np.argmin(gap[i, i + falls[0]:]))
-        if gap[i, j] < 0 and (best is None or gap[i, j] < best[0]):
-            best = (gap[i, j], i, j)
-    if best is None:
+    # row i's first maximum along the rod beyond i: the first j >= i with D[i, j+1] < D[i, j]
+    falls = (np.diff(D, axis=1) < 0) & (np.arange(n - 1)[None, :] >= np.arange(n)[:, None])
+    beyond = np.arange(n)[None, :] >= np.argmax(falls, axis=1)[:, None]
+    gap = np.where(beyond & falls.any(axis=1)[:, None], D - (r[:, None] + r[None, :]), np.inf)
+    i, j = np.unravel_index(np.argmin(gap), gap.shape)
+    if not gap[i, j] < 0:
         return None
-    _, i, j = best
     return Overlap(float(X[i]), float(X[j]), float(D[i, j]), float(r[i] + r[j]))
