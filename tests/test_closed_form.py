@@ -160,3 +160,18 @@ def test_a_coil_passes_through_itself_where_its_turns_are_closer_than_its_diamet
         assert 0.98 * pitch <= found.distance <= pitch and found.reach == pytest.approx(2 * r)
         assert found.X_other - found.X == pytest.approx(2 * np.pi * np.hypot(
             R, pitch / (2 * np.pi)), rel=0.02)
+
+
+def test_a_centre_line_too_short_or_with_a_gap_is_read_as_it_can_be():
+    """Fewer than three points: nothing to compare (None); a non-finite point is left out,
+    the ring's ends still found."""
+    from tendonsense.rod import overlap
+    rho = 0.05
+    X = np.linspace(0.0, rho * 1.9 * np.pi, 201)
+    th = X / rho
+    P = np.stack([rho * np.sin(th), 0 * th, rho * (1 - np.cos(th))], axis=1)
+    P[150] = np.nan
+    found = overlap(P, X, np.full(X.size, 0.01))
+    assert found is not None and (found.X, found.X_other) == (0.0, X[-1])
+    assert overlap(P[:2], X[:2], np.full(2, 0.01)) is None
+    assert overlap(np.zeros((0, 3)), np.zeros(0), np.zeros(0)) is None

@@ -46,6 +46,9 @@ _B0 = (1.0 - GAMMA) ** 2 / (GAMMA * (2.0 - GAMMA))
 
 #: halvings of a step whose Newton iteration fails before the sample is marked failed
 MAX_HALVINGS = 6
+#: after a step that failed, the bound on the step length (half of it) grows by this factor
+#: with each good step, up to the largest step
+RECOVERY = 1.1
 #: relative residual at which a stage's Newton iteration stops (or the robot file's looser
 #: tolerance): far below a step's truncation error (prototype, 3 s, steps of 2 ms: markers move
 #: by 6e-10 m from 1e-10, their error against steps of 0.5 ms is 1e-6 to 4e-5 m); simulate
@@ -328,12 +331,12 @@ def integrator(structure: Structure, inertia: bool):
 
         def advance(c, t_end):
             """Steps until the newest state passes t_end, from the last sample's next step
-            length (``h_max`` at first): a failing step is retried in halves, and no later
-            step is longer than half of it (a step that failed once fails again: a run of
-            steps far too long, e.g. seconds for milliseconds, retried each sample, took
-            minutes), a good one is followed by one twice as long, at most that; (the last
-            two states, the next step's length and the longest, whether every step
-            converged)."""
+            length (``h_max`` at first): a failing step is retried in halves, and later
+            steps are no longer than half of it, a bound that grows by :data:`RECOVERY` with
+            each good step (a step that failed once fails again: a run of steps far too
+            long, e.g. seconds for milliseconds, retried each sample, took minutes); a good
+            step is followed by one twice as long, within that bound; (the last two states,
+            the next step's length and its bound, whether every step converged)."""
             def cond(c):
                 s, _, h, top, halvings = c
                 return (s.t < t_end - 1e-9 * h_max) & (halvings <= MAX_HALVINGS)
@@ -344,7 +347,8 @@ def integrator(structure: Structure, inertia: bool):
                 keep = s._replace(lu=new.lu)
                 pick = lambda a, b: jax.tree_util.tree_map(  # noqa: E731
                     lambda x, y: jnp.where(good, x, y), a, b)
-                top = jnp.where(good, top, jnp.minimum(top, h / 2))
+                top = jnp.where(good, jnp.minimum(RECOVERY * top, h_max),
+                                jnp.minimum(top, h / 2))
                 h_next = jnp.where(good, jnp.minimum(2 * h, top), h / 2)
                 halvings = jnp.where(good, jnp.maximum(halvings - 1, 0), halvings + 1)
                 return pick(new, keep), pick(s, prev), h_next, top, halvings

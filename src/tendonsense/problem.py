@@ -237,7 +237,8 @@ def unstable_at(prob: Problem, x, drive, values: Values, parts=None) -> str:
     force estimated along a given direction suggests estimating its direction too (the rod
     may rest out of the plane of its loads, where a fixed direction misreads it)."""
     why = unstable(values, (jacobians(prob, x, drive, values) if parts is None else parts)[0])
-    if why and prob.n_z < 3 and np.any(np.asarray(prob.unknowns.forces) != 0):
+    if (why and prob.n_magnitudes < 3 and len(prob.robot.tendons) >= 3
+            and np.any(np.asarray(prob.unknowns.forces) != 0)):
         why += (" (a rod that has swung out of the plane of its loads is read wrongly along "
                 "a given direction: give three unknowns along x, y and z at the force's X, "
                 "e.g. --unknown X,1,0,0 --unknown X,0,1,0 --unknown X,0,0,1, with readings "

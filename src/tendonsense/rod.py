@@ -56,15 +56,19 @@ def overlap(points, X, radius) -> Overlap | None:
     (n,), of radius ``radius`` (n,) there, passes through itself, or None. Two parts of the
     rod touch where their centre lines are closer than their radii together; parts that
     follow each other along the rod are always that close, so a point is compared only with
-    the rod beyond its distance's first maximum along it each way (where the rod has turned
-    back towards it)."""
+    the rod beyond its distance's first maximum going on along the rod (where the rod has
+    turned back towards it; each pair is seen from its first point). Non-finite points are
+    left out."""
     P, X, r = (np.asarray(a, float) for a in (points, X, radius))
     n = len(P)
+    if n < 3:
+        return None
     D = np.linalg.norm(P[:, None, :] - P[None, :, :], axis=-1)
     # row i's first maximum along the rod beyond i: the first j >= i with D[i, j+1] < D[i, j]
     falls = (np.diff(D, axis=1) < 0) & (np.arange(n - 1)[None, :] >= np.arange(n)[:, None])
     beyond = np.arange(n)[None, :] >= np.argmax(falls, axis=1)[:, None]
-    gap = np.where(beyond & falls.any(axis=1)[:, None], D - (r[:, None] + r[None, :]), np.inf)
+    gap = D - (r[:, None] + r[None, :])
+    gap = np.where(beyond & falls.any(axis=1)[:, None] & np.isfinite(gap), gap, np.inf)
     i, j = np.unravel_index(np.argmin(gap), gap.shape)
     if not gap[i, j] < 0:
         return None

@@ -204,7 +204,7 @@ def settle(structure: Structure, values: Values, drive: Drive, unknowns: Unknown
         r, size, J, L_inv = (np.asarray(a) for a in lin(values, drive, unknowns, x))
         finite = np.all(np.isfinite(r)) and np.all(np.isfinite(J))
         if before is not None and not (finite and (np.linalg.norm(r) <= GROWTH * before[1]
-                                                   or before[3] < 0)):
+                                                   or is_unstable(before[3]))):
             # the step left the motion (its linearisation): again, a quarter as long
             x, h, v_old, before = before[0], before[2] / 4, None, None
             if h < SHORTEST:
