@@ -19,7 +19,7 @@ from .kinematics import poses
 from .model import Model, material_values
 from .result import Result, joined
 from .robot import Robot, check_robot
-from .rod import overlap
+from .rod import Overlap, overlap
 from .stability import SETTLED_NOTE, is_unstable, stiffness_ratio, tangent, unstable_note
 from .statics import (CACHE_SIZE, Drive, NewtonResult, Unknowns, derivatives, marker_positions,
                       preload_outputs, shape_outputs, solve_system)
@@ -85,11 +85,17 @@ def make_result(model: Model, x, tensions, res: NewtonResult, why: str | None = 
         residual=float(res.residual), **extra)
 
 
-def through_itself(robot: Robot, backbone) -> str:
-    """A note where the shape of centre line ``backbone`` (from base to tip, evenly spaced)
-    passes through itself (:func:`~tendonsense.rod.overlap`), or ''."""
+def crossing(robot: Robot, backbone) -> Overlap | None:
+    """Where the shape of centre line ``backbone`` (from base to tip, evenly spaced along the
+    rod) passes through itself (:func:`~tendonsense.rod.overlap`), or None."""
     X = np.linspace(0.0, robot.rod.length, len(backbone))
-    where = overlap(backbone, X, robot.rod.radius(X))
+    return overlap(backbone, X, robot.rod.radius(X))
+
+
+def through_itself(robot: Robot, backbone) -> str:
+    """A note where the shape of centre line ``backbone`` passes through itself
+    (:func:`crossing`), or ''."""
+    where = crossing(robot, backbone)
     if where is None:
         return ""
     return (f"{THROUGH_ITSELF}: its centre line at X = {where.X:.4g} m is "

@@ -24,12 +24,12 @@ from matplotlib.textpath import TextPath  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from .forward import THROUGH_ITSELF, model_for  # noqa: E402
+from .forward import crossing as forward_crossing  # noqa: E402  (a local is named crossing)
 from .inputs import EDGE, friction_signs, parameter_words  # noqa: E402
 from .kinematics import frames_fn  # noqa: E402
 from .readings import write_bytes_atomic  # noqa: E402
 from .result import Result, joined  # noqa: E402
 from .robot import Robot  # noqa: E402
-from .rod import overlap  # noqa: E402
 from .stability import SETTLED_NOTE, UNSTABLE_NOTE  # noqa: E402
 from .tendons import turning_along  # noqa: E402
 from .units import GF, between, newtons, spread  # noqa: E402
@@ -160,9 +160,8 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     FigureCanvasAgg(fig)
     axes, cax = [fig.add_axes((0, 0, 1, 1)) for _ in VIEWS], fig.add_axes((0, 0, 1, 1))
     note = result.extra.get("note", "") if failed is None and result.converged else ""
+    where = forward_crossing(robot, result.backbone) if THROUGH_ITSELF in note else None
     Xb = np.linspace(0.0, L, len(backbone))
-    where = overlap(result.backbone, Xb, robot.rod.radius(Xb)) if THROUGH_ITSELF in note \
-        else None
     crossing = None if where is None else np.array(
         [[np.interp(x, Xb, backbone[:, c]) for c in range(3)] for x in where[:2]])
     warning = joined("UNSTABLE EQUILIBRIUM: the rod would leave this shape for another"
