@@ -42,6 +42,12 @@ def _angle(a, b):
     return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
 
 
+def _cross(a, b):
+    """a × b of two 3-vectors (``np.cross``'s arithmetic, without its overhead)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                     a[0] * b[1] - a[1] * b[0]])
+
+
 def rot_to_quat(R):
     w = np.sqrt(max(1e-300, 1 + np.trace(R))) / 2
     return np.array([w, (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w),
@@ -103,6 +109,23 @@ class CosseratBVP:
             out[13 * k:13 * k + 13] = (b - a) * np.concatenate([dr, dQ, dn, dm])
         return out
 
+    def ode_jacobian(self, s, y, lam):
+        """∂ode/∂y (n, n, points) by forward differences, as ``solve_bvp`` estimates it (same
+        steps, the same numbers), perturbing one component of every segment at once: a
+        segment's equations involve its own state only, so the Jacobian is block-diagonal
+        and 13 evaluations give it, not 13 per segment."""
+        f0 = self.ode(s, y, lam)
+        J = np.zeros((y.shape[0], y.shape[0], y.shape[1]))
+        h = np.finfo(float).eps ** 0.5 * (1 + np.abs(y))
+        for i in range(13):
+            rows = np.arange(i, y.shape[0], 13)
+            y_new = y.copy()
+            y_new[rows] += h[rows]
+            df = self.ode(s, y_new, lam) - f0
+            for k, j in enumerate(rows):
+                J[13 * k:13 * k + 13, j] = df[13 * k:13 * k + 13] / (y_new[j] - y[j])
+        return J
+
     def _strains(self, X, R, n, m, A, I, lam):
         """v and u (body frame, (3, points)) from the section's total n and m (global)."""
         n_loc = np.einsum("mji,jm->im", R, n)
@@ -136,11 +159,8 @@ class CosseratBVP:
 
     def _frames_at_cuts(self, ya, yb):
         """Position and rotation at every cut (from the segment starting there, or ending)."""
-        frames = []
-        for c in range(self.nseg + 1):
-            Y = ya[13 * c:13 * c + 13] if c < self.nseg else yb[13 * (c - 1):13 * c]
-            frames.append((Y[:3], quat_to_rot(Y[3:7, None])[0]))
-        return frames
+        Y = np.concatenate([ya.reshape(self.nseg, 13), yb[None, 13 * (self.nseg - 1):]])
+        return list(zip(Y[:, :3], quat_to_rot(Y[:, 3:7].T)))
 
     def point_forces_at_cuts(self, frames, lam, record=None):
         """Global force and moment (about the centre line) applied at every cut; ``record``
@@ -177,7 +197,7 @@ class CosseratBVP:
                 f = tension * vL + after * vR
                 c = idx[i]
                 F[c] += f
-                M[c] += np.cross(frames[c][1] @ d[i], f)
+                M[c] += _cross(frames[c][1] @ d[i], f)
                 tension = after
         for X, f in self.loads:
             F[cut_index[X]] += lam * f
@@ -269,7 +289,8 @@ class CosseratBVP:
                 s = np.linspace(0.0, 1.0, self.remesh)
                 y = sol.sol(s)
             sol = solve_bvp(lambda s, y: self.ode(s, y, lam), lambda a, b: self.bc(a, b, lam),
-                            s, y, tol=tol, max_nodes=max_nodes)
+                            s, y, fun_jac=lambda s, y: self.ode_jacobian(s, y, lam), tol=tol,
+                            max_nodes=max_nodes)
             if sol.status != 0:
                 raise RuntimeError(f"reference BVP failed at load factor {lam}: {sol.message}")
             s, y = sol.x, sol.y
