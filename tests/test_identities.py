@@ -15,16 +15,25 @@ def frictionless(prototype):
     return prototype.with_parameters(friction=0.0)
 
 
+# each one compiled program per structure: evaluated op by op, every first call took seconds
+_frames = jax.jit(grid_frames, static_argnums=0)
+_actuation = jax.jit(tendons.actuation, static_argnums=0)
+
+
+_lengths = jax.jit(lambda structure, values, q: tendons.length_changes(
+    structure, values, poses(values, q)[0], q), static_argnums=0)
+
+
 def frames(model, q):
-    return grid_frames(model.structure, model.values, q)
+    return _frames(model.structure, model.values, q)
 
 
 def lengths(model, q):
-    return tendons.length_changes(model.structure, model.values, poses(model.values, q)[0], q)
+    return _lengths(model.structure, model.values, q)
 
 
 def actuation(model, q, friction):
-    return tendons.actuation(model.structure, model.values, q, friction)
+    return _actuation(model.structure, model.values, q, friction)
 
 
 def random_q(model, seed, scale=2.0):
@@ -36,7 +45,7 @@ def test_frictionless_actuation_is_minus_tendon_length_gradient(frictionless, se
     model = model_for(frictionless)
     q = random_q(model, seed)
     B = np.asarray(actuation(model, q, jnp.zeros(3)))
-    dy = np.asarray(jax.jacfwd(lambda q: lengths(model, q))(q))
+    dy = np.asarray(jax.jit(jax.jacfwd(lambda q: lengths(model, q)))(q))
     assert np.abs(B).max() > 1e-3
     np.testing.assert_allclose(B, -dy.T, rtol=0, atol=1e-9 * np.abs(B).max())
 
@@ -46,7 +55,7 @@ def test_friction_breaks_the_identity(prototype):
     model = model_for(prototype)
     q = random_q(model, 0)
     B = np.asarray(actuation(model, q, jnp.full(3, 0.4)))
-    dy = np.asarray(jax.jacfwd(lambda q: lengths(model, q))(q))
+    dy = np.asarray(jax.jit(jax.jacfwd(lambda q: lengths(model, q)))(q))
     assert np.abs(B + dy.T).max() > 1e-3 * np.abs(B).max()
 
 
@@ -56,8 +65,8 @@ def test_pulled_back_tendon_forces_are_body_jacobian_products(prototype):
     model = model_for(prototype)
     q = random_q(model, 5, scale=1.0)
     grid = frames(model, q)
-    unit = np.asarray(tendons.unit_wrenches(model.structure, model.values, grid.g,
-                                            jnp.full(3, 0.4)))
+    unit = np.asarray(jax.jit(tendons.unit_wrenches, static_argnums=0)(
+        model.structure, model.values, grid.g, jnp.full(3, 0.4)))
     B = np.zeros((model.nq, 3))
     for grp, index in zip(model.values.tendons, model.structure.groups):
         for k, j in enumerate(index):
@@ -196,9 +205,9 @@ def test_residual_tension_derivative_is_exact(prototype):
         return residual(model.structure, model.values, (0,), x, drive._replace(tensions=T),
                         unknowns, 1.0, sc)[0]
 
-    exact = np.asarray(jax.jacfwd(r, argnums=1)(q, drive.tensions))
-    rT = np.asarray(residual(model.structure, model.values, (0,), q, drive, unknowns, 1.0, sc,
-                             with_actuation=True)[2])
+    exact = np.asarray(jax.jit(jax.jacfwd(r, argnums=1))(q, drive.tensions))
+    rT = np.asarray(jax.jit(lambda q: residual(model.structure, model.values, (0,), q, drive,
+                                               unknowns, 1.0, sc, with_actuation=True)[2])(q))
     assert np.abs(exact).max() > 1e-3
     np.testing.assert_allclose(rT, exact, rtol=0, atol=1e-12 * np.abs(exact).max())
     for holds in (True, False):
