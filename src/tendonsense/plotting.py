@@ -23,8 +23,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.textpath import TextPath  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
-from .forward import THROUGH_ITSELF, model_for  # noqa: E402
-from .forward import crossing as forward_crossing  # noqa: E402  (a local is named crossing)
+from .forward import THROUGH_ITSELF, crossing, model_for  # noqa: E402
 from .inputs import EDGE, friction_signs, parameter_words  # noqa: E402
 from .kinematics import frames_fn  # noqa: E402
 from .readings import write_bytes_atomic  # noqa: E402
@@ -160,9 +159,9 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     FigureCanvasAgg(fig)
     axes, cax = [fig.add_axes((0, 0, 1, 1)) for _ in VIEWS], fig.add_axes((0, 0, 1, 1))
     note = result.extra.get("note", "") if failed is None and result.converged else ""
-    where = forward_crossing(robot, result.backbone) if THROUGH_ITSELF in note else None
+    where = crossing(robot, result.backbone) if THROUGH_ITSELF in note else None
     Xb = np.linspace(0.0, L, len(backbone))
-    crossing = None if where is None else np.array(
+    rings = None if where is None else np.array(
         [[np.interp(x, Xb, backbone[:, c]) for c in range(3)] for x in where[:2]])
     warning = joined("UNSTABLE EQUILIBRIUM: the rod would leave this shape for another"
                      if UNSTABLE_NOTE in note else "",
@@ -211,8 +210,8 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
         if measured:
             ax.scatter(*_points(measured)[:, [i, j]].T, s=45, marker="x", color=MEASURED,
                        lw=1.8, zorder=5)
-        if crossing is not None:
-            ax.scatter(crossing[:, i], crossing[:, j], s=260, fc="none", ec="red", lw=1.8,
+        if rings is not None:
+            ax.scatter(rings[:, i], rings[:, j], s=260, fc="none", ec="red", lw=1.8,
                        zorder=6)
     for _ in range(3):
         _separate(fig, axes)
@@ -227,7 +226,7 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
         _tension_bar(fig, cax, norm, bar_names)
     else:
         cax.remove()
-    _legend(fig, axes, tendons, markers, measured, loads, crossing is not None)
+    _legend(fig, axes, tendons, markers, measured, loads, rings is not None)
     _title(fig, axes, title, given, warning, remark)
     if failed is not None or not result.converged:
         _stamp(fig, axes, failed)
