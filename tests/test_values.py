@@ -359,7 +359,12 @@ def test_factorisations_match_lapack():
 
 NO_SCIPY_SCRIPT = """
 import sys
+import jax
 from tendonsense.cli import main
+compiles = []
+jax.monitoring.register_event_duration_secs_listener(
+    lambda event, secs, **kw: compiles.append(1)
+    if event == "/jax/core/compile/backend_compile_duration" else None)
 robot = sys.argv[1]
 for argv in (["solve", robot, "--tension", "t1=2.0"],
              ["estimate", robot, "--displacement", "t1=-0.005", "--tension", "t1=2.1",
@@ -371,6 +376,7 @@ if sys.argv[2] == "lapack":  # a kept program that calls LAPACK still loads and 
     out = compiled.Program(lambda a: jnp.linalg.solve(a, jnp.ones(2)), "lapack_test", 0)(
         2.0 * np.eye(2))
     assert np.allclose(out, 0.5), out
+print(len(compiles))
 print(sorted(m for m in sys.modules if m.split(".")[0] == "scipy")[:3])
 """
 
@@ -378,7 +384,8 @@ print(sorted(m for m in sys.modules if m.split(".")[0] == "scipy")[:3])
 def test_a_warm_start_imports_no_lapack(tmp_path):
     """The solvers' kept programs call no LAPACK kernel, so a warm ``solve`` or ``estimate``
     does not import SciPy's LAPACK (0.2–0.3 s of every start-up); a kept program that does
-    call one loads it (issue 24)."""
+    call one loads it (issue 24). Nor does it compile anything: every step on the host is
+    NumPy or a kept program (an eager JAX operation compiles in every new process)."""
     env = dict(os.environ, TENDONSENSE_CACHE_DIR=str(tmp_path))
     robot = str(Path(__file__).parents[1] / "examples" / "paper_prototype.toml")
     outs = [subprocess.run([sys.executable, "-c", NO_SCIPY_SCRIPT, robot, what], env=env,
@@ -387,6 +394,8 @@ def test_a_warm_start_imports_no_lapack(tmp_path):
     assert all(o.returncode == 0 for o in outs), [o.stderr[-2000:] for o in outs]
     assert outs[1].stdout.splitlines()[-1] != "[]"  # the LAPACK program imported it
     assert outs[2].stdout.splitlines()[-1] == "[]", outs[2].stdout[-500:]
+    assert outs[0].stdout.splitlines()[-2] != "0"  # (the count sees a compile)
+    assert outs[2].stdout.splitlines()[-2] == "0", outs[2].stdout[-500:]
 
 
 PRELOAD_SCRIPT = """

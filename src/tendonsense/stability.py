@@ -48,12 +48,13 @@ def stiffness_ratio(values: Values, tangent) -> float:
     K = float(values.young_modulus) * np.asarray(values.stiffness(), float)
     with np.errstate(all="ignore"):
         return float(_least(np.linalg.eigvals(np.linalg.solve(K, np.asarray(tangent, float)))
-                            .real))
+                            .real, np))
 
 
-def _least(real_parts):
-    """The least of the eigenvalues' real parts, 0 where one is not finite (traceable)."""
-    return jnp.where(jnp.all(jnp.isfinite(real_parts)), jnp.min(real_parts), 0.0)
+def _least(real_parts, xp=jnp):
+    """The least of the eigenvalues' real parts, 0 where one is not finite (traceable with
+    ``xp`` jax.numpy; numpy on the host: no program to build)."""
+    return xp.where(xp.all(xp.isfinite(real_parts)), xp.min(real_parts), 0.0)
 
 
 def scaled_ratios(J_qq, L_inv):
