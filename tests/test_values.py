@@ -365,8 +365,9 @@ compiles = []
 jax.monitoring.register_event_duration_secs_listener(
     lambda event, secs, **kw: compiles.append(1)
     if event == "/jax/core/compile/backend_compile_duration" else None)
-robot = sys.argv[1]
-for argv in (["solve", robot, "--tension", "t1=2.0"],
+robot, figure = sys.argv[1], sys.argv[3]
+for argv in (["solve", robot, "--tension", "t1=2.0", "--plot", figure],
+             ["fk", robot, "--displacement", "t1=-0.01"],
              ["estimate", robot, "--displacement", "t1=-0.005", "--tension", "t1=2.1",
               "--unknown", "0.25,0,0,-1"]):
     assert main(argv) == 0
@@ -382,13 +383,14 @@ print(sorted(m for m in sys.modules if m.split(".")[0] == "scipy")[:3])
 
 
 def test_a_warm_start_imports_no_lapack(tmp_path):
-    """The solvers' kept programs call no LAPACK kernel, so a warm ``solve`` or ``estimate``
-    does not import SciPy's LAPACK (0.2–0.3 s of every start-up); a kept program that does
-    call one loads it (issue 24). Nor does it compile anything: every step on the host is
+    """The solvers' kept programs call no LAPACK kernel, so a warm ``solve`` (its figure
+    included), ``fk`` or ``estimate`` does not import SciPy's LAPACK (0.2–0.3 s of every
+    start-up); a kept program that does call one loads it (issue 24). Nor does it compile anything: every step on the host is
     NumPy or a kept program (an eager JAX operation compiles in every new process)."""
     env = dict(os.environ, TENDONSENSE_CACHE_DIR=str(tmp_path))
     robot = str(Path(__file__).parents[1] / "examples" / "paper_prototype.toml")
-    outs = [subprocess.run([sys.executable, "-c", NO_SCIPY_SCRIPT, robot, what], env=env,
+    outs = [subprocess.run([sys.executable, "-c", NO_SCIPY_SCRIPT, robot, what,
+                            str(tmp_path / "shape.png")], env=env,
                            capture_output=True, text=True, timeout=600)
             for what in ("lapack", "lapack", "none")]  # compiled, then loaded twice
     assert all(o.returncode == 0 for o in outs), [o.stderr[-2000:] for o in outs]

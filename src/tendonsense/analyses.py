@@ -10,7 +10,6 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass
 
-import jax.numpy as jnp
 import numpy as np
 
 from . import experiments
@@ -45,7 +44,7 @@ def _axes(robot: Robot) -> np.ndarray:
 
 def _values_with_friction(prob, factors) -> Values:
     v = prob.model.values
-    return v._replace(friction=v.friction * jnp.asarray(factors, float))
+    return v._replace(friction=np.asarray(v.friction) * np.asarray(factors, float))
 
 
 def sensitivity_single(robot: Robot, tendon: str = "t1", forces_gf=(-25.0, -75.0, -125.0),

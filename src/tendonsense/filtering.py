@@ -42,7 +42,7 @@ from .estimation import estimate_problem
 from .inputs import (WALK, Noise, check_noise, check_stuck, sliding as check_sliding,
                      warn_no_damping)
 from .kinematics import poses, positions
-from .model import PointSet, Structure, Values, points_at
+from .model import PointSet, Structure, Values, host, points_at
 from .problem import Problem, _jacobians_fn, confounded
 from .result import SampleEstimate, joined
 from .sliding import NOISE_REACH, FrictionHistory, labels
@@ -229,8 +229,8 @@ class MotionFilter:
         if self._history is not None:  # friction per turn, at every sample (one program)
             values = values._replace(friction=np.outer(values.friction, np.ones(history.turns)))
         self._values, self._unknowns = jax.device_put((values, prob.unknowns))
-        self._markers = jax.device_put(points_at(model.structure, model.values,
-                                                 model.values.marker_X))
+        self._markers = jax.device_put(points_at(model.structure, host(model.values),
+                                                 model.values.marker_X, np))
         tuning = Tuning(*(np.float64(v) for v in (walk, noise.length, noise.tension)))
         # on the device once: a sample copies in its time, tensions, targets and friction only
         self._tuning, self._start, self._drive = jax.device_put((
@@ -287,7 +287,8 @@ class MotionFilter:
             values = values._replace(friction=friction * history.mu[:, None])  # copied in
         if state is None:  # (friction at each tendon's anchor's state, as a single reading)
             start = estimate_problem(prob, displacements, tensions, self.noise, values=(
-                values if history is None else values._replace(friction=values.friction[:, -1])))
+                values if history is None else values._replace(
+                    friction=np.asarray(values.friction)[:, -1])))
             if not start.converged:
                 return self._failed(joined("the first sample's quasi-static estimate did not "
                                            "converge", start.extra.get("note")),

@@ -67,7 +67,7 @@ def make_result(model: Model, x, tensions, res: NewtonResult, why: str | None = 
     """The result of a solve at ``x``; not converged, it says why: ``why`` if given, else the
     strain's range or the solver's iterations and residual."""
     robot = model.robot
-    q = np.asarray(x[: model.nq])
+    q = np.asarray(x)[: model.nq]
     markers, backbone, y, fine = shape_outputs(model.structure, model.values, q)
     if not (bool(res.converged) and fine):
         why = why_not(res, fine, robot.numerics.tolerance) if not fine or not why else why
@@ -230,7 +230,7 @@ def forward_kinematics(robot: Robot, displacements: Mapping[str, float],
         tensions=select)
     res = solve_system(model.structure, sliding_values(robot, model.values, sliding), measured,
                        drive, unknowns, inputs.start(q0, model.nq, model.nq + n_z))
-    T = np.asarray(drive.tensions) + select @ np.asarray(res.x[model.nq:])
+    T = np.asarray(drive.tensions) + select @ np.asarray(res.x)[model.nq:]
     pushing = [k for k in measured if T[k] < -TENSION_TOL * max(1.0, np.abs(T).max())]
     if pushing and bool(res.converged):
         k = pushing[0]

@@ -324,13 +324,13 @@ def _setup(robot: Robot, snapshots: Sequence[Snapshot], params, marker_noise, le
     _check_noises(robot, marker_noise, length_noise)
     model = model_for(robot)
     base = model.values
-    gravity = jnp.asarray(robot.gravity, float)
+    gravity = np.asarray(robot.gravity, float)
     drives, markers, lengths = [], [], []
     for s in snapshots:
         T = np.array([s.tensions.get(n, 0.0) for n in robot.tendon_names])
         X, F = (s.load[0], s.load[1]) if s.load is not None else (robot.rod.length, (0, 0, 0))
-        drives.append(Drive(jnp.asarray(T), jnp.asarray([F], float), jnp.asarray([X], float),
-                            gravity, jnp.zeros(0)))
+        drives.append(Drive(T, np.asarray([F], float), np.asarray([X], float), gravity,
+                            np.zeros(0)))
         markers.append(([robot.marker_names.index(m) for m in s.markers],
                         np.array([s.markers[m] for m in s.markers]).reshape(-1, 3)))
         lengths.append(([robot.tendon_names.index(n) for n in s.displacements],

@@ -254,17 +254,24 @@ def material_values(robot: Robot) -> dict[str, np.ndarray]:
                 friction=np.array([t.friction for t in robot.tendons], float).reshape(-1))
 
 
-def points_at(structure: Structure, values: Values, X) -> PointSet:
+def points_at(structure: Structure, values: Values, X, xp=jnp) -> PointSet:
     """Material points at ``X`` (traced, any shape → flat), each reached by a partial Magnus
-    step from the grid node at or below it; differentiable in X."""
-    nodes = jnp.asarray(values.nodes)
-    X = jnp.clip(jnp.ravel(jnp.asarray(X, float)), 0.0, values.length)
+    step from the grid node at or below it; differentiable in X. ``xp`` numpy: on the host
+    (values on the host, :func:`host`; no program to build)."""
+    nodes = xp.asarray(values.nodes)
+    X = xp.clip(xp.ravel(xp.asarray(X, float)), 0.0, values.length)
     n_int = nodes.shape[0] - 1
-    start = jnp.clip(jnp.searchsorted(nodes, X, side="right") - 1, 0, n_int - 1)
+    start = xp.clip(xp.searchsorted(nodes, X, side="right") - 1, 0, n_int - 1)
     x0 = nodes[start]
     h = X - x0
-    return PointSet(start, h, structure.basis(x0 + (0.5 - _Z) * h, values, jnp),
-                    structure.basis(x0 + (0.5 + _Z) * h, values, jnp))
+    return PointSet(start, h, structure.basis(x0 + (0.5 - _Z) * h, values, xp),
+                    structure.basis(x0 + (0.5 + _Z) * h, values, xp))
+
+
+def host(values: Values) -> Values:
+    """``values`` with every array on the host (NumPy): what is computed from them outside a
+    program (e.g. :meth:`Values.stiffness`) then builds no program."""
+    return jax.tree_util.tree_map(np.asarray, values)
 
 
 #: Gauss points per grid interval of a continuously routed tendon's path integrals

@@ -11,7 +11,6 @@ from typing import NamedTuple
 import matplotlib
 
 matplotlib.use("Agg")
-import jax.numpy as jnp  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
@@ -129,8 +128,8 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
               for t in robot.tendons]
     model = model_for(robot)
     g = np.asarray(frames_fn(model.structure)(
-        model.values, jnp.asarray(result.q),
-        jnp.asarray(np.concatenate([*routes, [X for X, *_ in loads]]), float)))
+        model.values, np.asarray(result.q, float),
+        np.concatenate([*routes, [X for X, *_ in loads]]).astype(float)))
     p, R = g[:, :3, 3] * 1e3, g[:, :3, :3]
     tendons, k = [], 0  # (name, tension at the actuator, path mm, each segment's tension)
     for t, X, sign in zip(robot.tendons, routes, friction_signs(robot, sliding)):

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .compiled import Program
-from .model import Structure, Values
+from .model import Structure, Values, host
 from .statics import CACHE_SIZE, Drive, NewtonResult, Unknowns, residual, scaling
 
 #: an equilibrium whose stiffness ratio (:func:`unstable`) falls below −UNSTABLE is unstable
@@ -34,7 +34,7 @@ def tangent(values: Values, res: NewtonResult, nq: int) -> np.ndarray:
     """``∂E/∂q`` (unscaled, eq. 7) at a Newton solution, from the Jacobian of its scaled
     residual (:func:`~tendonsense.statics.residual`: ``J_qq = L⁻¹ ∂E/∂q / √E``,
     ``K = L Lᵀ``)."""
-    L = np.linalg.cholesky(np.asarray(values.stiffness(), float))
+    L = np.linalg.cholesky(host(values).stiffness())
     return np.sqrt(float(values.young_modulus)) * L @ np.asarray(res.jacobian, float)[:nq, :nq]
 
 
@@ -45,7 +45,7 @@ def stiffness_ratio(values: Values, tangent) -> float:
     no friction). λ is 1 for an unloaded rod and ``1 − P/P_cr`` for a column under an end load
     P (Euler's P_cr); below −:data:`UNSTABLE` a mode grows from any disturbance
     (:func:`is_unstable`)."""
-    K = float(values.young_modulus) * np.asarray(values.stiffness(), float)
+    K = float(values.young_modulus) * host(values).stiffness()
     with np.errstate(all="ignore"):
         return float(_least(np.linalg.eigvals(np.linalg.solve(K, np.asarray(tangent, float)))
                             .real, np))

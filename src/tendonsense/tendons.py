@@ -236,7 +236,9 @@ def turning_along(points, entry) -> np.ndarray:
     u = np.diff(np.asarray(points, float), axis=0)
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     before = np.concatenate([np.asarray(entry, float)[None] / np.linalg.norm(entry), u[:-1]])
-    return np.cumsum(np.asarray(_angle(before, u)))
+    # _angle on the host (no program to build)
+    return np.cumsum(2.0 * np.arctan2(np.linalg.norm(before - u, axis=1),
+                                      np.linalg.norm(before + u, axis=1)))
 
 
 def actuation(structure: Structure, values: Values, q, friction):

@@ -9,7 +9,6 @@ from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .estimation import estimate_problem
@@ -342,18 +341,17 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     notes, ratio, rested = np.full(n, "", object), np.full(n, np.nan), np.zeros(n, bool)
 
     def drive(rows):
-        return Drive(jnp.asarray(T[rows]), jnp.asarray(F[rows]), jnp.asarray(X[rows]),
-                     jnp.asarray(g[rows]), jnp.zeros((len(rows), 0)))
+        return Drive(T[rows], F[rows], X[rows], g[rows], np.zeros((len(rows), 0)))
 
     def params(rows):
-        return {k: jnp.asarray(v[rows]) for k, v in varied.items()}
+        return {k: np.asarray(v[rows]) for k, v in varied.items()}
 
     def ratio_args(rows, count):  # the chunk's first ``count`` rows, where converged
         return (structure, base, params(rows), drive(rows), unknowns,
                 np.where(conv[rows, None], q[rows], 0.0), conv[rows] & (np.arange(chunk) < count))
 
     def one(k):  # sample k's values and drive
-        return (base._replace(**{name: jnp.asarray(a[k]) for name, a in varied.items()}),
+        return (base._replace(**{name: np.asarray(a[k]) for name, a in varied.items()}),
                 jax.tree_util.tree_map(lambda a: a[0], drive([k])))
 
     def alone(k):  # sample k solved on its own from the straight rod, as :func:`solve`
@@ -367,7 +365,7 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
         for start in range(0, run.size, chunk):
             idx = run[start:start + chunk]
             rows = np.concatenate([idx, np.full(chunk - idx.size, idx[-1])])
-            tr = jax.device_get(track(jnp.asarray(x0), drive(rows), unknowns, base,
+            tr = jax.device_get(track(x0, drive(rows), unknowns, base,
                                       params(rows)))
             for j, k in enumerate(idx):
                 if tr.converged[j]:
