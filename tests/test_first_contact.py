@@ -1012,6 +1012,23 @@ def test_a_simulation_ends_at_its_duration_and_says_a_coarse_step(prototype, tmp
     assert sim.time[-1] == 0.1 and sim.time.size == 5
 
 
+def test_a_simulation_from_equilibrium_starts_with_its_tendons_friction(tmp_path):
+    """simulate --from-equilibrium --sliding t1=out starts at the paid-out equilibrium (as
+    solve --sliding t1=out), so that a tension held constant holds the rod still (it started
+    at the pulled-in one and moved 13 mm of tendon under the constant tension)."""
+    damped = ROOT / "examples" / "paper_prototype_damped.toml"
+    p = cli("simulate", damped, "--tension", "t1=1.9", "--sliding", "t1=out",
+            "--from-equilibrium", "--duration", "0.1", "--output-dt", "0.05", "--max-step",
+            "0.01", "-o", tmp_path / "s.csv")
+    assert p.returncode == 0, p.stderr
+    y = [float(r["displacement_t1"]) for r in csv.DictReader(open(tmp_path / "s.csv"))]
+    paid_out = solve(load_robot(damped), {"t1": 1.9}, sliding={"t1": "out"})
+    pulled_in = solve(load_robot(damped), {"t1": 1.9})
+    assert abs(paid_out.displacements["t1"] - pulled_in.displacements["t1"]) > 5e-3
+    assert y[0] == pytest.approx(paid_out.displacements["t1"], abs=1e-9)
+    assert max(abs(v - y[0]) for v in y) < 1e-5, y
+
+
 def test_a_coordinate_that_rounds_to_zero_is_printed_without_a_sign_slip():
     from tendonsense.cli import _signed
     assert [_signed(v, 4) for v in (-1e-7, 0.0, -0.00006, 0.12345)] == [

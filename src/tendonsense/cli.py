@@ -1711,7 +1711,9 @@ def _simulate(args, robot) -> bool:
         from .forward import solve
         first = {n: float(np.interp(0.0, *e)) if isinstance(e, tuple) else e
                  for n, e in args.schedule.items()}
-        rest = solve(robot, first, _point_forces(args))
+        # each tendon's friction as the motion starts (follow: pulled in at first)
+        rest = solve(robot, first, _point_forces(args), sliding={
+            n: d for n, d in (args.sliding or {}).items() if d != "follow"})
         if not rest.converged:
             print(f"tendonsense simulate: the equilibrium at t = 0 did not converge "
                   f"({rest.note}); nothing written", file=sys.stderr)
