@@ -1619,6 +1619,41 @@ def test_a_damping_fit_takes_a_row_without_its_markers(prototype, tmp_path):
     assert fit.marker_rmse is not None and np.isfinite(fit.marker_rmse)
 
 
+def test_a_damping_fit_takes_the_logs_friction_direction(prototype, tmp_path, monkeypatch):
+    """identify --readings: a log whose sliding_t1 column says out in every row starts at the
+    paid-out equilibrium and is simulated paid out (the column was ignored: the same η as
+    pulled in); directions that change along the log are refused."""
+    import tendonsense.identification as identification
+    from tendonsense.readings import read_readings
+    robot = prototype.with_parameters(damping=1000.0)
+    start = solve(robot, {"t1": 1.9}, sliding={"t1": "out"})
+
+    def log(directions):
+        path = tmp_path / "step.csv"
+        path.write_text("time,tension_t1,tension_t2,tension_t3,displacement_t1,sliding_t1\n"
+                        + "".join(f"{0.01 * k},{1.9 + 0.1 * min(k, 2)},0,0,"
+                                  f"{start.displacements['t1']},{d}\n"
+                                  for k, d in enumerate(directions)))
+        return read_readings(path, robot)[1]
+
+    class Stop(Exception):
+        pass
+
+    seen = []
+
+    def simulated(*args, sliding=None, q0=None, **kwargs):
+        seen.append((sliding, q0))
+        raise Stop
+
+    monkeypatch.setattr(identification, "simulate", simulated)
+    with pytest.raises(Stop):
+        identification.identify_damping(robot, log(["out"] * 6))
+    assert seen[0][0] == {"t1": "out"}
+    np.testing.assert_allclose(seen[0][1], start.q, atol=1e-9)
+    with pytest.raises(SnapshotError, match="column sliding_t1 says in and out"):
+        identification.identify_damping(robot, log(["in"] * 3 + ["out"] * 3))
+
+
 @pytest.mark.parametrize("sep, words", [(";", "this one by ';'"), ("\t", "this one by tabs")])
 def test_a_log_not_separated_by_commas_is_named(tmp_path, sep, words):
     """A log written with semicolons or tabs (a spreadsheet's export) is refused naming the

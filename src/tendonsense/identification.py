@@ -551,7 +551,9 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
     stamps (:class:`~tendonsense.readings.Sample`, e.g. a step or a ramp of the tensions under
     the known ``point_forces``): the motion is simulated from rest at the first row with the
     log's tensions (linear between rows), and its tendon length changes and markers are fitted
-    to the measured ones, each weighted by its noise.
+    to the measured ones, each weighted by its noise. Each tendon's friction follows its
+    tension history (:func:`~tendonsense.simulation.simulate`'s ``follow``), or slides the one
+    way its ``sliding_<tendon>`` column says (``in`` or ``out`` in every row that says one).
 
     One parameter: a coarse search over τ = 3η/E from ``TAU_MIN`` (0.1 ms) to ten times the
     log's duration, then Brent's method in log η between the best point's neighbours. Its
@@ -576,13 +578,22 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
     if not measured and not markers:
         raise SnapshotError("the log has no displacement_<tendon> or marker columns: nothing "
                             "to fit the damping to")
+    sliding = {}
+    for n in names:
+        said = sorted({s.sliding[n] for s in rows if n in s.sliding})
+        if len(said) > 1 or "stuck" in said:
+            raise SnapshotError(f"damping: column sliding_{n} says {' and '.join(said)}: the "
+                                f"fit takes one direction a tendon (in or out) for the whole "
+                                f"log, or follows its tension history where the column is "
+                                f"empty")
+        sliding.update({n: d for d in said})
     t = t - t[0]
     schedule = {n: (t, np.array([s.tensions[n] for s in rows])) for n in names}
     y_meas = np.array([[s.displacements[n] for n in measured] for s in rows])
     p_meas = np.array([[s.markers.get(m, np.full(3, np.nan)) for m in markers] for s in rows]
                       ).reshape(len(rows), -1, 3)
     seen = np.isfinite(p_meas[..., 0])
-    start = solve(robot, rows[0].tensions, point_forces)
+    start = solve(robot, rows[0].tensions, point_forces, sliding=sliding)
     if not start.converged:
         raise SnapshotError(f"the first row's static equilibrium (the motion's start) did not "
                             f"converge: {start.note}")
@@ -595,7 +606,8 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
         with warnings.catch_warnings():  # a coarse step: said of the fitted damping alone
             warnings.simplefilter("ignore")
             sim = simulate(robot.with_parameters(damping=float(np.exp(log_eta))), schedule,
-                           point_forces, duration=t[-1], inertia=inertia, q0=start.q, at=t[1:])
+                           point_forces, duration=t[-1], inertia=inertia, q0=start.q, at=t[1:],
+                           sliding=sliding)
         evaluations[0] += 1
         if not sim.ok:
             return np.inf, None, None
