@@ -457,6 +457,10 @@ def test_a_header_only_log_is_an_error(tmp_path):
       "--param", "stiffness"), 1, "--param stiffness: not a parameter"),
     (("solve", PROTOTYPE, "--point-force", "-0.1,0,0,-1"), 1,
      "point force 1: X = -0.1 m is outside the rod"),
+    (("solve", PROTOTYPE, "--point-force", "250,0,0,-1"), 1,
+     "point force 1: X = 250 m is outside the rod [0, 0.25 m] (lengths are in metres)"),
+    (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--tension", "t1=2", "--unknown",
+      "0.3,0,0,-1"), 1, "unknown force: X = 0.3 m is outside the rod [0, 0.25 m]"),
     (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--tension", "t1=2", "--unknown",
       "?,0,0,-1"), 1, "need at least 2 tendons"),
     (("estimate", PROTOTYPE, "--readings", ROOT / "examples" / "tutorial" / "readings.csv",
@@ -1027,6 +1031,14 @@ def test_a_simulation_from_equilibrium_starts_with_its_tendons_friction(tmp_path
     assert abs(paid_out.displacements["t1"] - pulled_in.displacements["t1"]) > 5e-3
     assert y[0] == pytest.approx(paid_out.displacements["t1"], abs=1e-9)
     assert max(abs(v - y[0]) for v in y) < 1e-5, y
+
+
+def test_a_length_off_the_rod_in_millimetres_says_the_unit():
+    """X = 250 on a 0.25 m rod (millimetres typed as metres) says lengths are in metres; a
+    slip within ten rod lengths (0.3 m) does not guess a unit."""
+    assert inputs.outside_rod("load_X", 250.0, 0.25).endswith("(lengths are in metres)")
+    assert inputs.outside_rod("X", 0.3, 0.25) == "X = 0.3 m is outside the rod [0, 0.25 m]"
+    assert "metres" not in inputs.outside_rod("X", -250.0, 0.25)
 
 
 def test_a_coordinate_that_rounds_to_zero_is_printed_without_a_sign_slip():

@@ -114,6 +114,13 @@ def max_tension(robot: Robot, name: str, young_modulus=None):
 SOFTEST_RUBBER = 1e4
 
 
+def outside_rod(what: str, X: float, length: float) -> str:
+    """Why ``what`` = X (m) is not on a rod of ``length`` (m); a value that would be on it in
+    millimetres says that lengths are in metres."""
+    hint = " (lengths are in metres)" if 10 * length < X <= 1000 * length else ""
+    return f"{what} = {X:g} m is outside the rod [0, {length:g} m]{hint}"
+
+
 def tension_error(robot: Robot, name: str, T: float, young_modulus: float | None = None
                   ) -> str | None:
     """Why tension ``T`` (N) of the robot's tendon ``name`` cannot be a reading, or None.
@@ -406,8 +413,7 @@ def check_point_forces(robot: Robot, point_forces: Sequence[PointForce], young_m
     for i, (X, f) in enumerate(force_pairs(point_forces)):
         X = finite(f"point force {i + 1} X", X)
         if not 0.0 <= X <= robot.rod.length:
-            raise ValueError(f"point force {i + 1}: X = {X:g} m is outside the rod "
-                             f"[0, {robot.rod.length:g}]")
+            raise ValueError(f"point force {i + 1}: {outside_rod('X', X, robot.rod.length)}")
         f = np.asarray(f, float).reshape(-1)
         if f.size != 3 or not np.all(np.isfinite(f)):
             raise ValueError(f"point force {i + 1}: the force must be 3 finite numbers")
@@ -568,8 +574,9 @@ def check_unknowns(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unk
         if isinstance(u, PointForceUnknown):
             a, b = (0.0, L) if u.X is None else (u.X if u.located else (u.X, u.X))
             if not 0.0 <= a <= b <= L:
-                what = f"X = {a:g} m" if a == b else f"the range {a:g}:{b:g} m"
-                raise ValueError(f"unknown force: {what} is outside the rod [0, {L:g}]")
+                raise ValueError("unknown force: " + (
+                    outside_rod("X", a, L) if a == b else
+                    f"the range {a:g}:{b:g} m is outside the rod [0, {L:g} m]"))
             if b == 0.0:
                 raise ValueError("unknown force: at X = 0 it acts on the clamped base and moves "
                                  "nothing: the readings cannot tell its size")

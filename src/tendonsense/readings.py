@@ -16,8 +16,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .inputs import (SLIDING, Unknown, displacement_error, force_error, marker_error,
-                     max_tension, rest_lengths, stuck_error, stuck_located_error,
-                     tension_error)
+                     max_tension, outside_rod, rest_lengths, stuck_error,
+                     stuck_located_error, tension_error)
 from .result import SampleEstimate
 from .robot import Robot, check_robot, value_error
 
@@ -758,7 +758,7 @@ def read_parameter_sets(path: str | Path, robot: Robot) -> ParameterSets:
                 col in SET_VALUES or kind == "friction") else None
             error = (tension_error(robot, name, v, E) if kind == "tension" else
                      f"{col}: {why}" if why else
-                     f"load_X = {v:g} is outside the rod [0, {robot.rod.length:g}]"
+                     outside_rod("load_X", v, robot.rod.length)
                      if col == "load_X" and not 0 <= v <= robot.rod.length else None)
             if error:
                 raise ReadingsError(f"{path}: set {i + 1}: {error}")
