@@ -732,8 +732,8 @@ def _repeats(curve, drawn) -> str | None:
 
 
 def simulation(sim, path, title: str = "simulated motion", given: str = ""):
-    """A simulated motion over time: the tensions (N; solid pulled in, dotted stuck, dashed
-    paid out) and the tendon length changes (mm), a tendon whose curve repeats an earlier
+    """A simulated motion over time: the tensions (N; solid pulled in, dotted stuck at the
+    anchor, dashed paid out) and the tendon length changes (mm), a tendon whose curve repeats an earlier
     one's drawn dashed over it, and the last marker's position relative to its start (mm);
     samples that did not converge shaded, their shapes left out (no curve through them, as
     the log leaves their cells empty). ``given`` is a second title line."""
@@ -751,7 +751,9 @@ def simulation(sim, path, title: str = "simulated motion", given: str = ""):
         if again:  # drawn over the earlier one, its gaps showing it
             axes[0].plot(t, T, linestyle=(0, (4, 4)), label=f"{n} (as {again})")
             continue
-        phases = [(s >= 1 - EDGE, "-", n), (np.abs(s) < 1 - EDGE, ":", f"{n} stuck"),
+        # (the state of the anchor's turn: the tendon may slide nearer its actuator)
+        phases = [(s >= 1 - EDGE, "-", n),
+                  (np.abs(s) < 1 - EDGE, ":", f"{n} stuck at its anchor"),
                   (s <= -1 + EDGE, "--", f"{n} paid out")]
         color = None
         for mask, style, label in phases:
