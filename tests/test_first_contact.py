@@ -1033,6 +1033,16 @@ def test_a_simulation_from_equilibrium_starts_with_its_tendons_friction(tmp_path
     assert max(abs(v - y[0]) for v in y) < 1e-5, y
 
 
+def test_a_slack_tendons_sliding_direction_is_said_to_change_nothing():
+    """solve --sliding t2=out where t2 is slack: the result as without it, and a note that
+    the direction changes nothing (estimate refuses such a tendon stuck); none for t1."""
+    p = cli("solve", PROTOTYPE, "--tension", "t1=2", "--sliding", "t2=out", "--sliding",
+            "t1=out")
+    assert p.returncode == 0, p.stderr
+    assert p.stderr == ("tendonsense solve: note: --sliding t2=out: t2 is slack (0 N), its "
+                        "friction changes nothing (another tendon meant?)\n")
+
+
 def test_a_length_off_the_rod_in_millimetres_says_the_unit():
     """X = 250 on a 0.25 m rod (millimetres typed as metres) says lengths are in metres; a
     slip within ten rod lengths (0.3 m) does not guess a unit."""

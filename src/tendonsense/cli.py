@@ -1291,6 +1291,13 @@ def _print_result(result, as_json: bool, title: str, robot, unknowns=()):
 
 def _single(args, robot) -> bool:
     """solve, fk or a single estimate: the result printed, the figure drawn if asked."""
+    if args.command != "estimate":  # (estimate refuses a slack tendon stuck, and pays out none)
+        measured = getattr(args, "displacement", None) or {}
+        for name, direction in (args.sliding or {}).items():
+            if direction != "in" and name not in measured and not args.tension.get(name):
+                print(f"tendonsense {args.command}: note: --sliding {name}={direction}: {name} "
+                      f"is slack (0 N), its friction changes nothing (another tendon meant?)",
+                      file=sys.stderr)
     if args.command == "estimate":
         from .estimation import estimate
         result = estimate(robot, args.displacement, args.tension, args.unknown,
