@@ -308,3 +308,16 @@ def test_cli_identify_damping(tmp_path):
                         (("--snapshots", log, "--param", "damping"), "give --readings")):
         r = run(*args)
         assert r.returncode == 2 and words in r.stderr, r.stderr
+
+
+def test_every_kind_of_residual_far_below_its_noise_is_said():
+    """A fit whose marker and length residuals are both far below the noise assumed says so of
+    both (it named only the first), and of one kind alone where only it is."""
+    from tendonsense.identification import misfit_of
+    rng = np.random.default_rng(0)
+    markers, lengths = rng.normal(0, 1e-3, 60), rng.normal(0, 1e-4, 20)
+    _, both = misfit_of({"marker": (1e-3 * markers, 1e-3), "length": (1e-3 * lengths, 1e-4)}, 3)
+    assert "the marker residuals are" in both and "the length residuals are" in both, both
+    _, one = misfit_of({"marker": (1e-3 * markers, 1e-3), "length": (lengths, 1e-4)}, 3)
+    assert "the marker residuals are" in one and "length residuals" not in one, one
+    assert misfit_of({"marker": (markers, 1e-3), "length": (lengths, 1e-4)}, 3)[1] == ""

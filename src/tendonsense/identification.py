@@ -378,13 +378,15 @@ def misfit_of(kinds: dict[str, tuple[np.ndarray, float]], n_params: int
         return None, ""
     total = sum(c for c, _ in chi2.values())
     ratio = float(np.sqrt(total / dof))
+    small = []  # every kind whose noise is too large, said together
     for k, (c, m) in chi2.items():
         dof_k = m - n_params * m / n
         if dof_k >= 1 and c < distribution.ppf(1 - MISFIT_QUANTILE, dof_k):
-            return ratio, (f"the {k} residuals are {np.sqrt(c / dof_k):.2g} times the {k} noise "
-                           f"assumed ({kinds[k][1]:g} m), far less than that noise gives: it is "
-                           f"smaller than assumed, and the ± values, which assume it, are too "
-                           f"wide")
+            small.append(f"the {k} residuals are {np.sqrt(c / dof_k):.2g} times the {k} noise "
+                         f"assumed ({kinds[k][1]:g} m)")
+    if small:
+        return ratio, (f"{'; '.join(small)}, far less than that noise gives: it is smaller "
+                       f"than assumed, and the ± values, which assume it, are too wide")
     if total <= distribution.ppf(MISFIT_QUANTILE, dof):
         return ratio, ""
     return ratio, (f"the residuals are {ratio:.2g} times the noise assumed, more than noise "
