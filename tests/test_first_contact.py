@@ -1039,8 +1039,13 @@ def test_a_slack_tendons_sliding_direction_is_said_to_change_nothing():
     p = cli("solve", PROTOTYPE, "--tension", "t1=2", "--sliding", "t2=out", "--sliding",
             "t1=out")
     assert p.returncode == 0, p.stderr
-    assert p.stderr == ("tendonsense solve: note: --sliding t2=out: t2 is slack (0 N), its "
-                        "friction changes nothing (another tendon meant?)\n")
+    assert ("tendonsense solve: note: --sliding t2=out: t2 is slack (0 N), its friction "
+            "changes nothing (another tendon meant?)") in p.stderr.splitlines()
+    assert "t1 is slack" not in p.stderr
+    assert p.stdout == cli("solve", PROTOTYPE, "--tension", "t1=2", "--sliding",
+                           "t1=out").stdout
+    p = cli("fk", PROTOTYPE, "--displacement", "t1=-0.01", "--sliding", "t1=out")
+    assert p.returncode == 0 and "slack" not in p.stderr, p.stderr  # t1 measured: pulled
 
 
 def test_a_length_off_the_rod_in_millimetres_says_the_unit():
@@ -1672,7 +1677,7 @@ def test_a_damping_fit_takes_the_logs_friction_direction(prototype, tmp_path, mo
         identification.identify_damping(robot, log(["out"] * 6))
     assert seen[0][0] == {"t1": "out"}
     np.testing.assert_allclose(seen[0][1], start.q, atol=1e-9)
-    with pytest.raises(SnapshotError, match="column sliding_t1 says in and out"):
+    with pytest.raises(SnapshotError, match="column sliding_t1 says in and out: the damping"):
         identification.identify_damping(robot, log(["in"] * 3 + ["out"] * 3))
 
 

@@ -321,3 +321,6 @@ def test_every_kind_of_residual_far_below_its_noise_is_said():
     _, one = misfit_of({"marker": (1e-3 * markers, 1e-3), "length": (lengths, 1e-4)}, 3)
     assert "the marker residuals are" in one and "length residuals" not in one, one
     assert misfit_of({"marker": (markers, 1e-3), "length": (lengths, 1e-4)}, 3)[1] == ""
+    # one kind far below its noise does not hide the rest's misfit
+    _, mixed = misfit_of({"marker": (1e-3 * markers, 1e-3), "length": (30 * lengths, 1e-4)}, 3)
+    assert "the marker residuals are" in mixed and "the model does not fit" in mixed, mixed

@@ -385,8 +385,9 @@ print(sorted(m for m in sys.modules if m.split(".")[0] == "scipy")[:3])
 def test_a_warm_start_imports_no_lapack(tmp_path):
     """The solvers' kept programs call no LAPACK kernel, so a warm ``solve`` (its figure
     included), ``fk`` or ``estimate`` does not import SciPy's LAPACK (0.2–0.3 s of every
-    start-up); a kept program that does call one loads it (issue 24). Nor does it compile anything: every step on the host is
-    NumPy or a kept program (an eager JAX operation compiles in every new process)."""
+    start-up); a kept program that does call one loads it (issue 24). Nor does it compile
+    anything: every step on the host is NumPy or a kept program (an eager JAX operation
+    compiles in every new process)."""
     env = dict(os.environ, TENDONSENSE_CACHE_DIR=str(tmp_path))
     robot = str(Path(__file__).parents[1] / "examples" / "paper_prototype.toml")
     outs = [subprocess.run([sys.executable, "-c", NO_SCIPY_SCRIPT, robot, what,

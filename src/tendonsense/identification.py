@@ -327,7 +327,7 @@ def _setup(robot: Robot, snapshots: Sequence[Snapshot], params, marker_noise, le
     gravity = np.asarray(robot.gravity, float)
     drives, markers, lengths = [], [], []
     for s in snapshots:
-        T = np.array([s.tensions.get(n, 0.0) for n in robot.tendon_names])
+        T = np.array([s.tensions.get(n, 0.0) for n in robot.tendon_names], float)
         X, F = (s.load[0], s.load[1]) if s.load is not None else (robot.rod.length, (0, 0, 0))
         drives.append(Drive(T, np.asarray([F], float), np.asarray([X], float), gravity,
                             np.zeros(0)))
@@ -378,21 +378,21 @@ def misfit_of(kinds: dict[str, tuple[np.ndarray, float]], n_params: int
         return None, ""
     total = sum(c for c, _ in chi2.values())
     ratio = float(np.sqrt(total / dof))
-    small = []  # every kind whose noise is too large, said together
+    small = []  # every kind whose noise is too large
     for k, (c, m) in chi2.items():
         dof_k = m - n_params * m / n
         if dof_k >= 1 and c < distribution.ppf(1 - MISFIT_QUANTILE, dof_k):
             small.append(f"the {k} residuals are {np.sqrt(c / dof_k):.2g} times the {k} noise "
                          f"assumed ({kinds[k][1]:g} m)")
-    if small:
-        return ratio, (f"{'; '.join(small)}, far less than that noise gives: it is smaller "
-                       f"than assumed, and the ± values, which assume it, are too wide")
-    if total <= distribution.ppf(MISFIT_QUANTILE, dof):
-        return ratio, ""
-    return ratio, (f"the residuals are {ratio:.2g} times the noise assumed, more than noise "
-                   f"explains: the model does not fit the data (a parameter not fitted, a load "
-                   f"not given, a unit) or the noise is larger than assumed (the marker and "
-                   f"length noise given); the ± values assume that noise alone")
+    said = [f"{'; '.join(small)}, far less than such noise gives: the noise is smaller than "
+            f"assumed, and the ± values, which assume it, are too wide"] if small else []
+    if total > distribution.ppf(MISFIT_QUANTILE, dof):  # (said as well: one kind's small
+        # noise must not hide a fit that misses the rest)
+        said.append(f"the residuals are {ratio:.2g} times the noise assumed, more than noise "
+                    f"explains: the model does not fit the data (a parameter not fitted, a "
+                    f"load not given, a unit) or the noise is larger than assumed (the marker "
+                    f"and length noise given); the ± values assume that noise alone")
+    return ratio, "; and ".join(said)
 
 
 def _fit_again_off_the_edge(fit, setup, subset, max_iterations):
@@ -584,10 +584,10 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
     for n in names:
         said = sorted({s.sliding[n] for s in rows if n in s.sliding})
         if len(said) > 1 or "stuck" in said:
-            raise SnapshotError(f"damping: column sliding_{n} says {' and '.join(said)}: the "
-                                f"fit takes one direction a tendon (in or out) for the whole "
-                                f"log, or follows its tension history where the column is "
-                                f"empty")
+            raise SnapshotError(f"column sliding_{n} says {' and '.join(said)}: the damping "
+                                f"fit takes one direction per tendon (in or out) for the "
+                                f"whole log, or follows its tension history where the column "
+                                f"is empty in every row")
         sliding.update({n: d for d in said})
     t = t - t[0]
     schedule = {n: (t, np.array([s.tensions[n] for s in rows])) for n in names}

@@ -115,8 +115,8 @@ SOFTEST_RUBBER = 1e4
 
 
 def outside_rod(what: str, X: float, length: float) -> str:
-    """Why ``what`` = X (m) is not on a rod of ``length`` (m); a value that would be on it in
-    millimetres says that lengths are in metres."""
+    """Why ``what`` = X (m) is not on a rod of ``length`` (m); a value 10 to 1000 rod lengths
+    long (millimetres typed as metres) says that lengths are in metres."""
     hint = " (lengths are in metres)" if 10 * length < X <= 1000 * length else ""
     return f"{what} = {X:g} m is outside the rod [0, {length:g} m]{hint}"
 

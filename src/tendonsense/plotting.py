@@ -733,8 +733,9 @@ def _repeats(curve, drawn) -> str | None:
 
 def simulation(sim, path, title: str = "simulated motion", given: str = ""):
     """A simulated motion over time: the tensions (N; solid pulled in, dotted stuck at the
-    anchor, dashed paid out) and the tendon length changes (mm), a tendon whose curve repeats an earlier
-    one's drawn dashed over it, and the last marker's position relative to its start (mm);
+    anchor, dashed paid out) and the tendon length changes (mm), a tendon whose curve repeats
+    an earlier one's drawn dashed over it, and the last marker's position relative to its
+    start (mm);
     samples that did not converge shaded, their shapes left out (no curve through them, as
     the log leaves their cells empty). ``given`` is a second title line."""
     t = sim.time

@@ -493,8 +493,8 @@ def read_snapshots(path: str | Path, robot: Robot, young_modulus: float | None =
                                 f"load_fy and load_fz")
         else:
             if not 0 <= load_vals[0] <= robot.rod.length:
-                raise SnapshotError(f"{path}: snapshot row {i}: load_X = {load_vals[0]:g} is "
-                                    f"outside the rod")
+                raise SnapshotError(f"{path}: snapshot row {i}: "
+                                    f"{outside_rod('load_X', load_vals[0], robot.rod.length)}")
             load = (load_vals[0], tuple(load_vals[1:]))
             if error := force_error(robot, "the load", *load, young_modulus):
                 raise SnapshotError(f"{path}: snapshot row {i}: {error}")

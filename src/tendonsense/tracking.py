@@ -16,7 +16,7 @@ from .fastpath import (MAX_EVALUATIONS, MAX_JACOBIANS, Carry, Track,  # noqa: F4
                        follower, stacked_drives, tracker)
 from .forward import model_for, settled, sliding_values, why_not
 from .inputs import (Noise, check_noise, first_force_error, force_pairs, friction_signs,
-                     max_tension, tendon_vector, tension_error)
+                     max_tension, outside_rod, tendon_vector, tension_error)
 from .model import VALUE_NAMES
 from .online import RESCUE_BUDGET, OnlineEstimator
 from .problem import Problem, band, confounded, covariance, misfit_notes  # noqa: F401 (API)
@@ -446,8 +446,10 @@ def batch_inputs(robot: Robot, base, tensions, point_forces, values):
             k = int(np.argmax(bad))
             raise ValueError(f"batch: sample {k + 1}: "
                              f"{tension_error(robot, name, float(T[k, j]), float(E[k]))}")
-    if np.any((X < 0) | (X > robot.rod.length)):
-        raise ValueError(f"batch: a point force X is outside the rod [0, {robot.rod.length:g}]")
+    if np.any(off := (X < 0) | (X > robot.rod.length)):
+        k, j = np.argwhere(off)[0]
+        raise ValueError(f"batch: sample {k + 1}: point force {j + 1}: "
+                         f"{outside_rod('X', float(X[k, j]), robot.rod.length)}")
     for j in range(X.shape[1]):  # each sample's loads by the rule, with its own E
         if bad := first_force_error(robot, f"point force {j + 1}", X[:, j], F[:, j], E):
             raise ValueError(f"batch: sample {bad[0] + 1}: {bad[1]}")
