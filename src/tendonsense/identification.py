@@ -588,7 +588,8 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
                                 f"fit takes one direction per tendon (in or out) for the "
                                 f"whole log, or follows its tension history where the column "
                                 f"is empty in every row")
-        sliding.update({n: d for d in said})
+        if said:
+            sliding[n] = said[0]
     t = t - t[0]
     schedule = {n: (t, np.array([s.tensions[n] for s in rows])) for n in names}
     y_meas = np.array([[s.displacements[n] for n in measured] for s in rows])

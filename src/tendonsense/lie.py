@@ -216,9 +216,9 @@ def hat_times(sigma, g):
     return jnp.concatenate([top, jnp.zeros_like(g[..., 3:, :])], -2)
 
 
-def safe_norm(x):
+def safe_norm(x, xp=jnp):
     """Euclidean norms over the last axis, whose derivative at 0 is taken as 0 instead of
-    NaN."""
-    s = jnp.sum(x * x, axis=-1)
+    NaN (``xp`` numpy: on the host, no program to build)."""
+    s = xp.sum(x * x, axis=-1)
     pos = s > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, s, 1.0)), 0.0)
+    return xp.where(pos, xp.sqrt(xp.where(pos, s, 1.0)), 0.0)

@@ -236,9 +236,7 @@ def turning_along(points, entry) -> np.ndarray:
     u = np.diff(np.asarray(points, float), axis=0)
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     before = np.concatenate([np.asarray(entry, float)[None] / np.linalg.norm(entry), u[:-1]])
-    # _angle on the host (no program to build)
-    return np.cumsum(2.0 * np.arctan2(np.linalg.norm(before - u, axis=1),
-                                      np.linalg.norm(before + u, axis=1)))
+    return np.cumsum(_angle(before, u, np))
 
 
 def actuation(structure: Structure, values: Values, q, friction):
@@ -250,10 +248,11 @@ def actuation(structure: Structure, values: Values, q, friction):
             + continuous_actuation(structure, values, q, friction))
 
 
-def _angle(a, b):
+def _angle(a, b, xp=jnp):
     """Angle between unit vectors (last axis), ``2 atan2(|a − b|, |a + b|)``; its derivative at a
-    straight pass (angle 0, where the Capstan law has a kink) is taken as 0."""
-    return 2.0 * jnp.arctan2(safe_norm(a - b), safe_norm(a + b))
+    straight pass (angle 0, where the Capstan law has a kink) is taken as 0 (``xp`` numpy: on
+    the host, no program to build)."""
+    return 2.0 * xp.arctan2(safe_norm(a - b, xp), safe_norm(a + b, xp))
 
 
 def _dot(a, b):
