@@ -10,7 +10,10 @@ and the unknown magnitudes) with a covariance ``P``; between two time stamps, h 
   step's linearisation, with the unknowns a random walk (``Q_z = w² h``) and the tensions
   read with noise (``σ_T = noise.tension · T``);
 - **update**: with the measured length changes, ``y(q) = Δl + e``, ``σ_e = noise.length``
-  (Joseph form).
+  (Joseph form). The innovation ν (measured less predicted lengths, covariance S) tests the
+  sample: where ``νᵀ S⁻¹ ν`` is beyond the χ² quantile the sensor noise gives
+  (:data:`~tendonsense.problem.MISFIT_QUANTILE`), its note says the readings disagree beyond
+  their noise, as a least-squares estimate's does at rest.
 
 Without damping (``D = 0``) the step is a Newton step towards the equilibrium and, at rest
 with as many measured tendons as unknowns, the filter settles on the quasi-static estimate.
@@ -35,6 +38,7 @@ from typing import Mapping, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.special import chdtri
 
 from .compiled import Program
 from .dynamics import free_modes
@@ -43,7 +47,7 @@ from .inputs import (WALK, Noise, check_noise, check_stuck, sliding as check_sli
                      warn_no_damping)
 from .kinematics import poses, positions
 from .model import PointSet, Structure, Values, host, points_at
-from .problem import Problem, _jacobians_fn, confounded
+from .problem import MISFIT, MISFIT_QUANTILE, Problem, _jacobians_fn, confounded
 from .result import SampleEstimate, joined
 from .sliding import NOISE_REACH, FrictionHistory, labels
 from .statics import CACHE_SIZE, Drive, Unknowns, admissible, terms
@@ -93,9 +97,10 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int,
     """The compiled ``step(state, t, drive, unknowns, values, tuning, markers) -> (state, row)``
     (``markers``: the markers' :class:`~tendonsense.model.PointSet`, made once): one
     predict and update at time t with the tensions and measured length changes of ``drive``;
-    ``row`` is ``[q, z, σ_z, markers, ψ, ok]`` packed in one vector (one transfer to the host;
+    ``row`` is ``[q, z, σ_z, markers, ψ, ν, ν·S⁻¹ν, ok]`` packed in one vector (one transfer to the host;
     ψ the tendons' turning to each turn at the estimate, :func:`~tendonsense.tendons.depths`;
-    ok (1 or 0): finite, later than the state and in the model's strain range). A sample
+    ν the innovation (measured less predicted lengths) and ν·S⁻¹ν its χ²(n_meas) statistic
+    under the noise alone; ok (1 or 0): finite, later than the state and in the model's strain range). A sample
     that is not ok returns the state unchanged.
 
     The prediction is one linearly implicit Euler step (the implicit Euler equation
@@ -170,7 +175,9 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int,
         HP = y_q @ P[:nq]  # H = [∂y/∂q, 0]
         S = HP[:, :nq] @ y_q.T + tuning.length**2 * jnp.eye(sel.size)
         gain = jnp.linalg.solve(S, HP).T
-        x = jnp.concatenate([x1, z]) + gain @ (drive.targets - y)
+        innovation = drive.targets - y
+        nis = innovation @ jnp.linalg.solve(S, innovation)  # χ²(n_meas) if consistent
+        x = jnp.concatenate([x1, z]) + gain @ innovation
         KHP = gain @ HP  # (I − KH) P (I − KH)ᵀ + K R Kᵀ, expanded: O(n² m)
         P = P - KHP - KHP.T + gain @ S @ gain.T
         P = 0.5 * (P + P.T)
@@ -183,7 +190,8 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int,
         new = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, state)
         sigma = jnp.sqrt(jnp.maximum(jnp.diagonal(P)[n_s:], 0.0))
         return new, jnp.concatenate([q, z, sigma, jnp.ravel(positions(mk, values.marker_offsets)),
-                                     jnp.ravel(depths(structure, values, q)), ok[None]])
+                                     jnp.ravel(depths(structure, values, q)), innovation,
+                                     nis[None], ok[None]])
 
     return Program(step, "filter_step", (structure, measured, n_z, ringing))
 
@@ -236,9 +244,12 @@ class MotionFilter:
         self._tuning, self._start, self._drive = jax.device_put((
             tuning, tuning._replace(walk=np.float64(0.0)),
             prob.drive(np.zeros(model.n_tendons), np.zeros(len(prob.measured)))))
-        # where the parts of the step's row [q, z, σ_z, markers, ψ, ok] (filter_step) start
+        # where the parts of the step's row [q, z, σ_z, markers, ψ, ν, NIS, ok] (filter_step) start
         self._row = np.cumsum([0, model.nq, prob.n_z, prob.n_z, 3 * len(prob.robot.markers),
-                               model.n_tendons * turns(model.values), 1]).tolist()
+                               model.n_tendons * turns(model.values), len(prob.measured), 1,
+                               1]).tolist()
+        # a sample whose normalised innovation is beyond this is more than the noise explains
+        self._nis_limit = float(chdtri(len(prob.measured), 1 - MISFIT_QUANTILE))
         self.reset()
 
     def prepare(self):
@@ -305,7 +316,8 @@ class MotionFilter:
                 self._markers)
         new, row = self._step(*args)
         row = np.asarray(row)
-        _, z, sigma, markers, phi, ok = (row[a:b] for a, b in zip(self._row, self._row[1:]))
+        _, z, sigma, markers, phi, innovation, nis, ok = (
+            row[a:b] for a, b in zip(self._row, self._row[1:]))
         if not ok[0]:
             return self._lost("the step left the model's strain range or did not stay finite")
         self._state, self._t, self._failures = new, float(time), 0
@@ -320,10 +332,23 @@ class MotionFilter:
         over = prob.overloaded(row[:self._row[2]])[0]  # a force the model cannot hold
         return SampleEstimate(z[:n], sigma[:n], dict(zip(prob.robot.marker_names,
                                                          markers.reshape(-1, 3))),
-                              not over, 1, row[:self._row[2]],
-                              # (the covariance fetched only where there is a pair to compare)
-                              over or confounded(np.asarray(new.P)[-prob.n_z:, -prob.n_z:], n)
-                              if n > 1 or over else "", **more)
+                              not over, 1, row[:self._row[2]], joined(
+                                  # (the covariance fetched only where there is a pair to
+                                  # compare)
+                                  over or confounded(np.asarray(new.P)[-prob.n_z:, -prob.n_z:], n)
+                                  if n > 1 or over else "", self._misfit(innovation, nis[0])),
+                              **more)
+
+    def _misfit(self, innovation, nis: float) -> str:
+        """A note where the measured lengths differ from the step's prediction by more than
+        the noise explains (the normalised innovation squared above its χ² quantile), or ''."""
+        if not nis > self._nis_limit:
+            return ""
+        return (f"{MISFIT}: the measured lengths differ from the filter's prediction by "
+                f"{np.sqrt(np.mean(innovation**2)) * 1e3:.3g} mm RMS, "
+                f"{np.sqrt(nis / innovation.size):.2g} times what the length and tension noise "
+                f"explain (is a tendon swapped or mislabelled, its sliding direction wrong, a "
+                f"load not given, or the robot not at rest at the first sample?)")
 
     def _at_rest(self, t, x, P, drive) -> FilterState:
         """A state at rest at ``x = [q; z]`` with covariance ``P`` (of q and z) and the exact
