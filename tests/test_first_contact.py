@@ -217,8 +217,18 @@ def test_a_simulation_far_past_its_loads_is_refused(prototype, tmp_path):
     assert rc == 1 and not jax_loaded and "durations are in seconds" in err, err
     assert "runs 2997 s past the last change of the loads (at 3 s)" in err
     assert not (tmp_path / "m.csv").exists()
+    # a table in ms whose last row holds its value: the loads last change at its ramp's end
+    ms = tmp_path / "ms.csv"
+    ms.write_text("time,tension_t1\n0,1.9\n500,1.9\n1500,4.78\n2000,4.78\n")
+    rc, err, jax_loaded = refused_before_jax("simulate", PROTOTYPE, "--tensions", ms,
+                                             "--duration", "2000", "-o", tmp_path / "m.csv")
+    assert rc == 1 and not jax_loaded, err
+    assert "runs 500 s past the last change of the loads (at 1500 s)" in err, err
+    assert not (tmp_path / "m.csv").exists()
     with pytest.raises(ValueError, match="duration 61 s runs 61 s past"):
         simulate(prototype, {"t1": 2.0}, duration=61.0)
+    with pytest.raises(ValueError, match=r"duration 100 s runs 99 s past .* \(at 1 s\)"):
+        simulate(prototype, {"t1": ([0.0, 1.0, 100.0], [2.0, 3.0, 3.0])}, duration=100.0)
     from tendonsense.inputs import duration_error
     assert duration_error("duration", 63.0, 3.0) is None
     sim = simulate(prototype, {"t1": 2.0}, duration=0.02)

@@ -789,7 +789,7 @@ def _check_simulate(args, robot):
               f"(times are in seconds)", file=sys.stderr)
     args.schedule = {**args.tension, **schedule}
     if error := inputs.duration_error("--duration", args.duration, max(
-            [float(t[-1]) for t, _ in schedule.values()], default=0.0)):
+            [inputs.last_change(t, v) for t, v in schedule.values()], default=0.0)):
         raise ValueError(error)
     for flag, v in (("--noise-length", args.noise_length), ("--noise-tension", args.noise_tension)):
         if not (0 <= v < float("inf")):

@@ -10,7 +10,8 @@ generalized force is the statics' (eq. 7, 8b, 14).
 Integration: TR-BDF2 (a trapezoidal stage to ``t + γh``, a BDF2 stage to ``t + h``,
 ``γ = 2 − √2``): second order, L-stable, so that the stiff, heavily damped axial and shear modes
 of a slender rod decay instead of ringing; both stages share one iteration matrix shape and are
-solved by Newton's method with the exact Jacobian and an Armijo line search. A step whose
+solved by Newton's method (the exact Jacobian, with inertia less the inertial force's
+derivatives at fixed q̈) and an Armijo line search. A step whose
 Newton iteration fails is retried in halves. Without inertia (the quasi-static limit with
 damping) the state is q alone: ``D q̇ = B T + F − K q``.
 
@@ -191,7 +192,7 @@ class State(NamedTuple):
 def _equations(structure: Structure, values: Values, inertia: bool):
     """``residual(q, base_q, base_v, κh, drive, μ) -> (r, v, a)``: the stage equation
     ``y = base + κh ẏ(y)`` with q the unknown, in force units (v and a follow from q), and
-    ``rate(q, v, drive, μ)``: q̈ at a state (q̇ without inertia); μ the tendons' signed
+    ``rate(q, drive, μ)``: q̈ at rest at q (q̇ without inertia); μ the tendons' signed
     friction coefficients."""
     K = values.young_modulus * values.stiffness()
     D = values.damping_matrix()
@@ -204,12 +205,9 @@ def _equations(structure: Structure, values: Values, inertia: bool):
         a = (v - base_v) / kh
         return inertial_force(structure, values, q, v, a) + D @ v + K @ q - load, v, a
 
-    def rate(q, v, drive, mu):
+    def rate(q, drive, mu):  # (at rest: no damping or Coriolis force)
         f = _load(structure, values._replace(friction=mu), q, drive) - K @ q
-        if not inertia:
-            return jnp.linalg.solve(D, f)
-        f = f - D @ v - inertial_force(structure, values, q, v, jnp.zeros_like(v))
-        return jnp.linalg.solve(mass_matrix(structure, values, q), f)
+        return jnp.linalg.solve(mass_matrix(structure, values, q) if inertia else D, f)
 
     return residual, rate
 
@@ -229,7 +227,7 @@ def _hermite(s0: State, s1: State, t):
 
 @lru_cache(maxsize=CACHE_SIZE)
 def integrator(structure: Structure, inertia: bool):
-    """The compiled programs ``start(q, v, t, h, schedule, values) -> State`` and
+    """The compiled programs ``start(q, t, schedule, values) -> State`` (at rest) and
     ``run(state, times, h_max, schedule, values) -> (state, samples)``: TR-BDF2 steps of
     ``h_max`` from ``state`` (a step that fails retried in halves) past every output time in
     ``times``, and at each output time (cubic Hermite interpolation of q and q̇ between the
@@ -237,15 +235,19 @@ def integrator(structure: Structure, inertia: bool):
     whether every step converged, whether the strain is admissible and the tendons' friction
     states (+1 pulled in, −1 paid out, stuck between).
 
-    Each stage is solved to :data:`STAGE_TOLERANCE` by Newton's method on q with the exact
-    Jacobian, factored once and reused over iterations, stages and steps while the residual
-    falls at least tenfold per iteration, refreshed otherwise (at most once per iteration); an
-    Armijo line search on the fresh Jacobian's steps."""
+    Each stage is solved to :data:`STAGE_TOLERANCE` by Newton's method on q with the stage's
+    exact Jacobian (with inertia, less the derivatives of the inertial force at fixed q̈:
+    ``M(q)/(κh)² + D/(κh) + ∂(K q − load)/∂q``), factored once and reused over iterations,
+    stages and steps while the residual falls at least tenfold per iteration, refreshed
+    otherwise (at most once per iteration); an Armijo line search on the fresh matrix's
+    steps."""
     num = structure.numerics
     stage_tol = max(num.tolerance, STAGE_TOLERANCE)
 
     def parts(values, schedule):
-        residual, rate = _equations(structure, values, inertia)
+        residual, _ = _equations(structure, values, inertia)
+        K = values.young_modulus * values.stiffness()
+        D = values.damping_matrix()
         sc = scaling(values, ())
         floor = values.energy_floor * jnp.sqrt(values.young_modulus)
 
@@ -254,17 +256,25 @@ def integrator(structure: Structure, inertia: bool):
             return sc.L_inv @ r, (v, a)
 
         def factor(q, base_q, base_v, kh, t, mu):
-            J = jax.jacfwd(lambda q: scaled(q, base_q, base_v, kh, t, mu)[0])(q)
-            return jax.scipy.linalg.lu_factor(J)
+            if not inertia:  # the stage residual's exact Jacobian
+                J = jax.jacfwd(lambda q: scaled(q, base_q, base_v, kh, t, mu)[0])(q)
+                return jax.scipy.linalg.lu_factor(J)
+            # M(q)/(κh)² + D/(κh) + ∂(K q − load)/∂q: the exact Jacobian but for the
+            # derivatives of the inertial force M(q) q̈ + C(q, q̇) q̇ in q and q̇ at fixed q̈
+            # (O(κh) against M/(κh)²), which cost two thirds of the program's compile
+            drive, m = schedule.drive(t), values._replace(friction=mu)
+            J = jax.jacfwd(lambda q: K @ q - _load(structure, m, q, drive))(q)
+            J = J + D / kh + mass_matrix(structure, values, q) / kh**2
+            return jax.scipy.linalg.lu_factor(sc.L_inv @ J)
 
         def size(q):
             return jnp.linalg.norm(sc.L_inv @ (values.young_modulus
                                                * (values.stiffness() @ q))) + floor
 
-        return scaled, factor, size, rate
+        return scaled, factor, size
 
     def run(state, times, h_max, schedule: Schedule, values: Values):
-        scaled, factor, size, _ = parts(values, schedule)
+        scaled, factor, size = parts(values, schedule)
 
         def merit(r):
             m = 0.5 * r @ r
@@ -281,7 +291,8 @@ def integrator(structure: Structure, inertia: bool):
                 ok = merit(rt) <= (1 - 2e-4 * alpha) * merit(r)
                 conv = ok & (jnp.linalg.norm(rt) <= stage_tol * size(qt))
                 slow = ok & (merit(rt) > 1e-2 * merit(r)) & (it > 0)
-                refresh = ~conv & ((~ok & ~fresh) | slow)
+                none = ~jnp.any(lu[0] != 0)  # no iteration matrix formed yet (a start)
+                refresh = ~conv & ((~ok & ~fresh) | slow | none)
                 q, r = jnp.where(ok, qt, q), jnp.where(ok, rt, r)
                 lu = jax.lax.cond(refresh, lambda: factor(q, *args), lambda: lu)
                 step = ok | refresh
@@ -377,22 +388,21 @@ def integrator(structure: Structure, inertia: bool):
         (state, *_), out = jax.lax.scan(sample, (state, state, h0, h0), times)
         return state, out
 
-    def start(q, v, t, h, schedule: Schedule, values: Values):
-        """The state at ``(q, v)`` at time t with its acceleration (without inertia v is not
-        free: v and a are both the q̇ of the damped motion), the iteration matrix of a step
-        h from there, and every tendon's first reading ahead (pulled in unless told)."""
-        scaled, factor, _, rate = parts(values, schedule)
-        n_t = values.friction.shape[0]
+    def start(q, t, schedule: Schedule, values: Values):
+        """The state at rest at q at time t with its acceleration (without inertia the rod
+        is not at rest: v and a are both the q̇ of the damped motion), no iteration matrix
+        yet (the first stage forms it), and every tendon's first reading ahead (pulled in
+        unless told)."""
+        rate = _equations(structure, values, inertia)[1]
+        n_t, nq = values.friction.shape[0], q.shape[0]
         band = Band(jnp.full((n_t, turns(values)), jnp.nan), jnp.zeros(n_t),
                     depths(structure, values, q))
         _, band = play(band, values.friction, schedule.drive(t).tensions, band.phi,
                        schedule.sliding)
         mu, _ = schedule.friction(band, values.friction, t)
-        a = rate(q, v, schedule.drive(t), mu)
-        v = v if inertia else a
-        kh = _KAPPA * h
-        qd = v if inertia else a
-        lu = factor(q + 2 * kh * qd, q + kh * qd, v + kh * a, kh, t + GAMMA * h, mu)
+        a = rate(q, schedule.drive(t), mu)
+        v = jnp.zeros(nq) if inertia else a
+        lu = (jnp.zeros((nq, nq)), jnp.zeros(nq, jnp.int32))
         return State(t, q, v, a, lu, band)
 
     key = (structure, inertia)

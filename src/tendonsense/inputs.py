@@ -503,6 +503,16 @@ def length_noise_error(robot: Robot, what: str, sigma: float) -> str | None:
 SETTLED = 60.0
 
 
+def last_change(times, values) -> float:
+    """When a schedule (``values`` (k, …) at ``times`` (k,), linear between the rows, held
+    before the first and after the last) last changes: the time of the last row that differs
+    from the one before it, 0 if none (a row that holds the last value changes nothing)."""
+    t = np.asarray(times, float)
+    v = np.asarray(values, float).reshape(t.size, -1)
+    moved = np.flatnonzero(np.any(v[1:] != v[:-1], axis=1))
+    return float(t[moved[-1] + 1]) if moved.size else 0.0
+
+
 def duration_error(what: str, duration: float, last: float) -> str | None:
     """Why a simulation cannot run ``duration`` s whose loads last change at ``last`` s, or
     None: more than :data:`SETTLED` s past it is a unit slip (3000 for 3 s ran 344 s)."""

@@ -178,7 +178,8 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     if not X:  # one zero force at the base: one program with and without point forces
         X, F_entries = [0.0], [np.zeros(3)]
     F_times, F = _table(F_entries, 3, [f"point force {i + 1}" for i in range(len(F_entries))])
-    if error := inputs.duration_error("duration", duration, max(T_times[-1], F_times[-1])):
+    if error := inputs.duration_error("duration", duration, max(
+            inputs.last_change(T_times, T), inputs.last_change(F_times, F))):
         raise ValueError(error)
     schedule = Schedule(T_times, T[:, :, 0], F_times, F, np.array(X, float),
                         np.asarray(robot.gravity, float),
@@ -201,8 +202,7 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
             raise ValueError("at: the sample times must be finite, increasing and in "
                              "(0, duration]")
     start, run = integrator(model.structure, bool(inertia))
-    state = start(q, np.zeros(nq), np.float64(0.0), np.float64(max_step), schedule,
-                  model.values)
+    state = start(q, np.float64(0.0), schedule, model.values)
     markers, _, y, fine = shape_outputs(model.structure, model.values, q)
     first = (q, np.asarray(state.v), markers, y, True, fine,
              np.asarray(state.band.s)[:, -1])  # a tendon's state: its anchor's
