@@ -230,14 +230,16 @@ def test_snapshot_sliding_column(truth, tmp_path):
         read_snapshots(path, truth)
 
 
-def _step_log(robot, noise=0.0, seed=0, ramp=([0.0, 0.2, 0.4, 1.5], [1.0, 1.0, 3.0, 3.0])):
+def _step_log(robot, noise=0.0, seed=0, ramp=([0.0, 0.2, 0.4, 1.5], [1.0, 1.0, 3.0, 3.0]),
+              inertia=False):
     """The readings of t1 pulled from 1 N to 3 N in 0.2 s under a tip weight, from rest,
-    simulated with the robot's damping (no inertia), 100 Hz, with length noise."""
+    simulated with the robot's damping (no inertia unless asked), 100 Hz, with length
+    noise."""
     from tendonsense.readings import Sample
     from tendonsense.simulation import simulate
     load = [(robot.rod.length, (0.0, 0.0, -0.3))]
     q0 = solve(robot, {"t1": 1.0}, load).q
-    sim = simulate(robot, {"t1": ramp}, load, duration=1.5, output_dt=0.01, inertia=False,
+    sim = simulate(robot, {"t1": ramp}, load, duration=1.5, output_dt=0.01, inertia=inertia,
                    q0=q0)
     c = sim.readings(noise, 0.0, seed=seed)
     rows = [Sample(k + 1, c["time"][k], {n: c[f"tension_{n}"][k] for n in robot.tendon_names},
@@ -267,6 +269,27 @@ def test_damping_from_a_step():
     still, load, _ = _step_log(damped, ramp=([0.0], [2.0]))
     with pytest.raises(SnapshotError, match="cannot be identified"):
         identify_damping(start, still, load, inertia=False)
+
+
+def test_a_damping_fit_without_inertia_says_what_inertia_would_change():
+    """A rod with mass pulled in 0.2 s (simulated with its inertia, 0.1 mm of length noise),
+    fitted without inertia: η comes out several σ off, within the bound the warning gives
+    (√Δχ² of what inertia moves, times σ), and the warning says so; a move within the noise
+    is not said."""
+    import re
+
+    from tendonsense.identification import identify_damping, inertia_left_out
+    damped = load_robot(ROOT / "examples" / "paper_prototype_damped.toml")
+    eta = damped.rod.damping
+    rows, load, _ = _step_log(damped, 1e-4, seed=2, inertia=True)
+    fit = identify_damping(damped.with_parameters(damping=0.0), rows, load, inertia=False)
+    off = abs(fit.parameters["damping"] - eta) / fit.sigma["damping"]
+    bound = re.search(r"may be off by up to ([0-9.e+]+) times its ±", fit.warning)
+    assert bound and "the rod's inertia moves the fitted motion's readings by" in fit.warning
+    assert 3 < off <= float(bound.group(1)), (off, fit.warning)
+    dy = np.full((100, 1), 0.9e-5)  # Δχ² = 0.81: within what the noise resolves
+    assert inertia_left_out(dy, np.zeros((0, 3)), 1e-4, 1e-3) == ""
+    assert "up to 1.3 times" in inertia_left_out(1.3 * dy / 0.9, np.zeros((0, 3)), 1e-4, 1e-3)
 
 
 def test_a_damping_log_that_starts_in_motion_is_said_to(capsys):

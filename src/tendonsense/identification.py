@@ -545,6 +545,23 @@ def _moving_at_start(start, row, measured, markers, length_noise, marker_noise) 
             f"before the robot moves (or drop its first rows until it is still)")
 
 
+def inertia_left_out(dy, dp, length_noise: float, marker_noise: float) -> str:
+    """A warning where the rod's inertia, left out of a damping fit, moves the fitted
+    motion's readings (its length changes by ``dy`` (m), its markers by ``dp`` (…, 3), m) by
+    more than their noise resolves, or ''. With ``D`` = Δχ² of that move against the noise,
+    the fitted log η can be off by up to √D of its 1-σ (Cauchy–Schwarz: the move's part along
+    the damping's own effect on the readings, which χ² rising by 1 scales), so D > 1 is said."""
+    D = float(np.sum((dy / length_noise) ** 2) + np.sum((dp / marker_noise) ** 2))
+    if not D > 1:
+        return ""
+    moved = [f"{1e3 * np.sqrt(np.mean(a2)):.3g} mm RMS ({what})" for a2, what in (
+        (dy ** 2, "lengths"), (np.sum(dp ** 2, -1), "markers")) if a2.size]
+    return (f"without inertia (--no-inertia): the rod's inertia moves the fitted motion's "
+            f"readings by {' and '.join(moved)}, a χ² of {D:.3g} against the noise assumed: "
+            f"this motion is not slow enough to leave it out, and the damping may be off by "
+            f"up to {np.sqrt(D):.2g} times its ± (fit with inertia)")
+
+
 def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
                      inertia: bool = True, marker_noise: float = MARKER_NOISE,
                      length_noise: float = LENGTH_NOISE,
@@ -562,7 +579,9 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
     1-σ uncertainty is where χ² has risen by 1 on either side (half the interval; the profile
     of the likelihood, no derivative needed). Rows skipped by the reader are left out. The
     warning says also where the fitted damping's relaxation time is too short for the
-    simulation's step (:func:`~tendonsense.inputs.coarse_step`)."""
+    simulation's step (:func:`~tendonsense.inputs.coarse_step`), and, without ``inertia``,
+    where the rod's inertia would move the fitted motion's readings by more than their noise
+    resolves (:func:`inertia_left_out`; one more simulation, with inertia)."""
     rows = [s for s in samples if not s.error]
     if len(rows) < 3:
         raise SnapshotError(f"damping needs a log of at least 3 good rows (got {len(rows)})")
@@ -674,7 +693,20 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
                                1) if dp is not None else (None, "")
     fitted = robot.with_parameters(damping=eta)
     coarse = inputs.coarse_step(fitted, MAX_STEP)
-    warning = joined(moving, warning, coarse and f"at the fitted damping {coarse}")
+    left_out = ""
+    if not inertia and dp is not None:  # what leaving the rod's inertia out did to the fit
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            sim = simulate(fitted, schedule, point_forces, duration=t[-1], inertia=True,
+                           q0=start.q, at=t[1:], sliding=sliding)
+        if sim.ok:
+            left_out = inertia_left_out(
+                np.stack([sim.displacements[n] for n in measured], 1) - y_meas - dy
+                if measured else dy,
+                np.where(seen[..., None], np.stack([sim.markers[m] for m in markers], 1)
+                         - np.nan_to_num(p_meas) - dp, 0.0)[seen] if markers else dp[seen],
+                length_noise, marker_noise)
+    warning = joined(moving, warning, coarse and f"at the fitted damping {coarse}", left_out)
     return Identified({"damping": eta}, *errors(dp, dy), *errors(*initial),
                       bool(found.success) and not edge, evaluations[0],
                       fitted, sigma={"damping": sigma}, note=note,
