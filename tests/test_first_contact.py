@@ -460,6 +460,8 @@ def test_a_header_only_log_is_an_error(tmp_path):
       "--tension", "t1=2", "--unknown", "0.25,0,0,-1"), 2, "--displacement t1 given twice"),
     (("solve", PROTOTYPE, "--tension", "t1=2", "--plot", "no/such/folder/shape.png"), 1,
      "--plot no/such/folder/shape.png: no folder"),
+    (("solve", PROTOTYPE, "--tension", "t1=2", "--plot", PROTOTYPE / "shape.png"), 1,
+     f"'{PROTOTYPE}' is a file, not a folder"),
     (("estimate", PROTOTYPE, "--readings", ROOT / "examples" / "tutorial" / "readings.csv",
       "--unknown", "0.25,0,0,-1", "-o", "no/such/folder/out.csv"), 1,
      "-o/--estimates no/such/folder/out.csv: no folder"),

@@ -587,7 +587,8 @@ def _writable(path, what: str) -> None:
     if p.is_dir():
         raise ValueError(f"{what} {path}: is a folder, not a file")
     if not folder.is_dir():
-        raise ValueError(f"{what} {path}: no folder {str(folder)!r}")
+        raise ValueError(f"{what} {path}: {str(folder)!r} is a file, not a folder"
+                         if folder.exists() else f"{what} {path}: no folder {str(folder)!r}")
     if not os.access(folder, os.W_OK):
         raise ValueError(f"{what} {path}: the folder {str(folder)!r} is not writable")
 
@@ -879,7 +880,7 @@ def _check_estimate(args, robot, tensions, displacements):
 def _no_damping(args, robot):
     """The note that --dynamic on a robot without damping filters the quasi-static model."""
     if args.dynamic and robot.rod.damping <= 0:
-        print(f"tendonsense: {args.robot} has no [rod] damping: --dynamic filters the "
+        print(f"tendonsense: note: {args.robot} has no [rod] damping: --dynamic filters the "
               f"quasi-static model", file=sys.stderr)
 
 

@@ -381,17 +381,21 @@ def misfit_of(kinds: dict[str, tuple[np.ndarray, float]], n_params: int
     small = []  # every kind whose noise is too large
     for k, (c, m) in chi2.items():
         dof_k = m - n_params * m / n
-        if dof_k >= 1 and c < distribution.ppf(1 - MISFIT_QUANTILE, dof_k):
+        low = distribution.ppf(1 - MISFIT_QUANTILE, dof_k) if dof_k >= 1 else 0.0
+        if c < low:
             small.append(f"the {k} residuals are {np.sqrt(c / dof_k):.2g} times the {k} noise "
-                         f"assumed ({kinds[k][1]:g} m)")
-    said = [f"{'; '.join(small)}, far less than such noise gives: the noise is smaller than "
-            f"assumed, and the ± values, which assume it, are too wide"] if small else []
-    if total > distribution.ppf(MISFIT_QUANTILE, dof):  # (said as well: one kind's small
-        # noise must not hide a fit that misses the rest)
-        said.append(f"the residuals are {ratio:.2g} times the noise assumed, more than noise "
-                    f"explains: the model does not fit the data (a parameter not fitted, a "
-                    f"load not given, a unit) or the noise is larger than assumed (the marker "
-                    f"and length noise given); the ± values assume that noise alone")
+                         f"assumed ({kinds[k][1]:g} m), where such noise gives at least "
+                         f"{np.sqrt(low / dof_k):.2g} times over {m} of them")
+    said = [f"{'; '.join(small)}: the noise is smaller than assumed, and the ± values, which "
+            f"assume it, are too wide"] if small else []
+    high = distribution.ppf(MISFIT_QUANTILE, dof)
+    if total > high:  # (said as well: one kind's small noise must not hide a fit that misses
+        # the rest)
+        said.append(f"the residuals are {ratio:.2g} times the noise assumed, where noise "
+                    f"explains at most {np.sqrt(high / dof):.2g} times over {n} of them: the "
+                    f"model does not fit the data (a parameter not fitted, a load not given, a "
+                    f"unit) or the noise is larger than assumed (the marker and length noise "
+                    f"given); the ± values assume that noise alone")
     return ratio, "; and ".join(said)
 
 
