@@ -660,6 +660,7 @@ def coarse_step(robot, max_step: float) -> str | None:
     tau = 3 * robot.rod.damping / robot.rod.young_modulus
     if tau > 0 and max_step > STEP_PER_TAU * tau:
         return (f"a step of {max_step:g} s is longer than {STEP_PER_TAU:g} of the rod's "
-                f"relaxation time (τ = 3η/E = {tau:.3g} s): the motion is resolved coarsely "
-                f"(the default step is {MAX_STEP:g} s)")
+                f"relaxation time (τ = 3η/E = {tau:.3g} s): the motion is resolved coarsely; "
+                f"a step under {STEP_PER_TAU * tau:.3g} s follows it (--max-step; the default "
+                f"is {MAX_STEP:g} s), if [rod] damping = {robot.rod.damping:g} is in Pa·s")
     return None
