@@ -1440,6 +1440,17 @@ def test_a_force_the_measured_tendons_cannot_see_is_named(prototype):
     assert unseen(prob, 0 * seen.extra["x"], drive, prob.model.values) == ((), "")
 
 
+def test_a_log_says_misfits_only_beyond_chance():
+    """Each row's misfit test lets 0.1 % of rows through by chance: a log's summary counts
+    them only where there are more than the binomial's 99.9 % quantile (4 of 3,103 rows is
+    chance, and said every time: the paper's Fig. 7 logs under --dynamic); the rows keep their
+    notes."""
+    from tendonsense.logs import misfit_rows
+    assert misfit_rows(4, 3103) == "" and misfit_rows(1, 12) == "" and misfit_rows(0, 5) == ""
+    assert misfit_rows(2, 12).startswith("2 of 12 rows: the readings disagree beyond")
+    assert misfit_rows(12, 3103).startswith("12 of 3103 rows")
+
+
 def test_an_overdetermined_estimate_that_misses_its_readings_says_so(prototype):
     """Three measured tendons, one unknown: readings with t1's and t2's lengths swapped are
     met to 0.77 mm RMS, far beyond their noise: the estimate (a least-squares fit) says so (it

@@ -273,9 +273,9 @@ def test_damping_from_a_step():
 
 def test_a_damping_fit_without_inertia_says_what_inertia_would_change():
     """A rod with mass pulled in 0.2 s (simulated with its inertia, 0.1 mm of length noise),
-    fitted without inertia: η comes out several σ off, within the bound the warning gives
-    (√Δχ² of what inertia moves, times σ), and the warning says so; a move within the noise
-    is not said."""
+    fitted without inertia: η comes out more than 2 σ off (3.2 σ with this seed, 5.2 with the
+    next), within the bound the warning gives (√Δχ² of what inertia moves, times σ: 37); a
+    move within the noise is not said."""
     import re
 
     from tendonsense.identification import identify_damping, inertia_left_out
@@ -286,7 +286,7 @@ def test_a_damping_fit_without_inertia_says_what_inertia_would_change():
     off = abs(fit.parameters["damping"] - eta) / fit.sigma["damping"]
     bound = re.search(r"may be off by up to ([0-9.e+]+) times its ±", fit.warning)
     assert bound and "the rod's inertia moves the fitted motion's readings by" in fit.warning
-    assert 3 < off <= float(bound.group(1)), (off, fit.warning)
+    assert 2 < off <= float(bound.group(1)), (off, fit.warning)
     dy = np.full((100, 1), 0.9e-5)  # Δχ² = 0.81: within what the noise resolves
     assert inertia_left_out(dy, np.zeros((0, 3)), 1e-4, 1e-3) == ""
     assert "up to 1.3 times" in inertia_left_out(1.3 * dy / 0.9, np.zeros((0, 3)), 1e-4, 1e-3)

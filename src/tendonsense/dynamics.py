@@ -240,7 +240,8 @@ def integrator(structure: Structure, inertia: bool):
     ``M(q)/(κh)² + D/(κh) + ∂(K q − load)/∂q``), factored once and reused over iterations,
     stages and steps while the residual falls at least tenfold per iteration, refreshed
     otherwise (at most once per iteration); an Armijo line search on the fresh matrix's
-    steps."""
+    steps. Every stage is solved to its tolerance on the exact residual; a step whose stage
+    that matrix cannot solve is retried in halves like any other."""
     num = structure.numerics
     stage_tol = max(num.tolerance, STAGE_TOLERANCE)
 
@@ -259,11 +260,11 @@ def integrator(structure: Structure, inertia: bool):
             if not inertia:  # the stage residual's exact Jacobian
                 J = jax.jacfwd(lambda q: scaled(q, base_q, base_v, kh, t, mu)[0])(q)
                 return jax.scipy.linalg.lu_factor(J)
-            # M(q)/(κh)² + D/(κh) + ∂(K q − load)/∂q: the exact Jacobian but for the
+            # M(q)/(κh)² + D/(κh) + K − ∂load/∂q: the exact Jacobian but for the
             # derivatives of the inertial force M(q) q̈ + C(q, q̇) q̇ in q and q̇ at fixed q̈
-            # (O(κh) against M/(κh)²), which cost two thirds of the program's compile
+            # (O(κh) against M/(κh)²)
             drive, m = schedule.drive(t), values._replace(friction=mu)
-            J = jax.jacfwd(lambda q: K @ q - _load(structure, m, q, drive))(q)
+            J = K - jax.jacfwd(lambda q: _load(structure, m, q, drive))(q)
             J = J + D / kh + mass_matrix(structure, values, q) / kh**2
             return jax.scipy.linalg.lu_factor(sc.L_inv @ J)
 

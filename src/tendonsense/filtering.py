@@ -47,7 +47,8 @@ from .inputs import (WALK, Noise, check_noise, check_stuck, sliding as check_sli
                      warn_no_damping)
 from .kinematics import poses, positions
 from .model import PointSet, Structure, Values, host, points_at
-from .problem import MISFIT, MISFIT_QUANTILE, Problem, _jacobians_fn, confounded
+from .problem import (MISFIT, MISFIT_QUANTILE, Problem, _jacobians_fn, confounded,
+                      misfit_part)
 from .result import SampleEstimate, joined
 from .sliding import NOISE_REACH, FrictionHistory, labels
 from .statics import CACHE_SIZE, Drive, Unknowns, admissible, terms
@@ -97,11 +98,11 @@ def filter_step(structure: Structure, measured: tuple[int, ...], n_z: int,
     """The compiled ``step(state, t, drive, unknowns, values, tuning, markers) -> (state, row)``
     (``markers``: the markers' :class:`~tendonsense.model.PointSet`, made once): one
     predict and update at time t with the tensions and measured length changes of ``drive``;
-    ``row`` is ``[q, z, σ_z, markers, ψ, ν, ν·S⁻¹ν, ok]`` packed in one vector (one transfer to the host;
-    ψ the tendons' turning to each turn at the estimate, :func:`~tendonsense.tendons.depths`;
-    ν the innovation (measured less predicted lengths) and ν·S⁻¹ν its χ²(n_meas) statistic
-    under the noise alone; ok (1 or 0): finite, later than the state and in the model's strain range). A sample
-    that is not ok returns the state unchanged.
+    ``row`` is ``[q, z, σ_z, markers, ψ, ν, ν·S⁻¹ν, ok]`` packed in one vector (one transfer
+    to the host; ψ the tendons' turning to each turn at the estimate,
+    :func:`~tendonsense.tendons.depths`; ν the innovation, measured less predicted lengths,
+    and ν·S⁻¹ν its χ²(n_meas) statistic; ok (1 or 0): finite, later than the state and in the
+    model's strain range). A sample that is not ok returns the state unchanged.
 
     The prediction is one linearly implicit Euler step (the implicit Euler equation
     linearised at the last estimate; no iteration, so that every sample's work is fixed).
@@ -244,7 +245,7 @@ class MotionFilter:
         self._tuning, self._start, self._drive = jax.device_put((
             tuning, tuning._replace(walk=np.float64(0.0)),
             prob.drive(np.zeros(model.n_tendons), np.zeros(len(prob.measured)))))
-        # where the parts of the step's row [q, z, σ_z, markers, ψ, ν, NIS, ok] (filter_step) start
+        # where the parts of the step's row [q, z, σ_z, markers, ψ, ν, NIS, ok] start
         self._row = np.cumsum([0, model.nq, prob.n_z, prob.n_z, 3 * len(prob.robot.markers),
                                model.n_tendons * turns(model.values), len(prob.measured), 1,
                                1]).tolist()
@@ -292,7 +293,7 @@ class MotionFilter:
         drive = self._drive._replace(tensions=T, targets=y[list(prob.measured)])
         state, tuning, values = self._state, self._tuning, self._values
         history = None if self._history is None else self._history.copy()
-        friction = None
+        friction, first = None, ""
         if history is not None and not history.pulled(T, given):
             friction = history.step(T, None, given)  # at the last shape's turning angles
             values = values._replace(friction=friction * history.mu[:, None])  # copied in
@@ -309,6 +310,8 @@ class MotionFilter:
             P = np.zeros((len(z) + prob.model.nq,) * 2)
             P[-n:, -n:] = np.diag((10 * start.sigma + 1e-3 * np.abs(z) + 1e-12) ** 2)
             state, tuning = self._at_rest(time - REST, start.extra["x"], P, drive), self._start
+            # (its innovation is against its own static fit: the fit's misfit test is its test)
+            first = misfit_part(start.extra.get("note", ""))
         elif not time > self._t:
             return self._lost(f"time {time:g} s does not follow the last estimate's "
                               f"{self._t:g} s")
@@ -336,7 +339,8 @@ class MotionFilter:
                                   # (the covariance fetched only where there is a pair to
                                   # compare)
                                   over or confounded(np.asarray(new.P)[-prob.n_z:, -prob.n_z:], n)
-                                  if n > 1 or over else "", self._misfit(innovation, nis[0])),
+                                  if n > 1 or over else "",
+                                  first or self._misfit(innovation, nis[0])),
                               **more)
 
     def _misfit(self, innovation, nis: float) -> str:
@@ -346,9 +350,10 @@ class MotionFilter:
             return ""
         return (f"{MISFIT}: the measured lengths differ from the filter's prediction by "
                 f"{np.sqrt(np.mean(innovation**2)) * 1e3:.3g} mm RMS, "
-                f"{np.sqrt(nis / innovation.size):.2g} times what the length and tension noise "
-                f"explain (is a tendon swapped or mislabelled, its sliding direction wrong, a "
-                f"load not given, or the robot not at rest at the first sample?)")
+                f"{np.sqrt(nis / innovation.size):.2g} times what the noise and the filter's "
+                f"uncertainty explain (is a tendon swapped or mislabelled, its sliding "
+                f"direction wrong, a load not given, or the robot not at rest at the first "
+                f"sample?)")
 
     def _at_rest(self, t, x, P, drive) -> FilterState:
         """A state at rest at ``x = [q; z]`` with covariance ``P`` (of q and z) and the exact

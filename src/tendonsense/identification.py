@@ -549,21 +549,25 @@ def _moving_at_start(start, row, measured, markers, length_noise, marker_noise) 
             f"before the robot moves (or drop its first rows until it is still)")
 
 
-def inertia_left_out(dy, dp, length_noise: float, marker_noise: float) -> str:
+def inertia_left_out(dy, dp, length_noise: float, marker_noise: float,
+                     bounded: bool = True) -> str:
     """A warning where the rod's inertia, left out of a damping fit, moves the fitted
     motion's readings (its length changes by ``dy`` (m), its markers by ``dp`` (…, 3), m) by
     more than their noise resolves, or ''. With ``D`` = Δχ² of that move against the noise,
     the fitted log η can be off by up to √D of its 1-σ (Cauchy–Schwarz: the move's part along
-    the damping's own effect on the readings, which χ² rising by 1 scales), so D > 1 is said."""
+    the damping's own effect on the readings, which χ² rising by 1 scales), so D > 1 is said
+    (``bounded``: the fit has a ±)."""
     D = float(np.sum((dy / length_noise) ** 2) + np.sum((dp / marker_noise) ** 2))
     if not D > 1:
         return ""
     moved = [f"{1e3 * np.sqrt(np.mean(a2)):.3g} mm RMS ({what})" for a2, what in (
         (dy ** 2, "lengths"), (np.sum(dp ** 2, -1), "markers")) if a2.size]
-    return (f"without inertia (--no-inertia): the rod's inertia moves the fitted motion's "
-            f"readings by {' and '.join(moved)}, a χ² of {D:.3g} against the noise assumed: "
-            f"this motion is not slow enough to leave it out, and the damping may be off by "
-            f"up to {np.sqrt(D):.2g} times its ± (fit with inertia)")
+    off = (f"by up to {np.sqrt(D):.2g} times its ±" if bounded
+           else "by more than the noise resolves")
+    return (f"without inertia (--no-inertia, inertia=False): the rod's inertia moves the fitted "
+            f"motion's readings by {' and '.join(moved)}, a χ² of {D:.3g} against the noise "
+            f"assumed: this motion is not slow enough to leave it out, and the damping may be "
+            f"off {off} (fit with inertia)")
 
 
 def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
@@ -709,7 +713,11 @@ def identify_damping(robot: Robot, samples: Sequence, point_forces=(), *,
                 if measured else dy,
                 np.where(seen[..., None], np.stack([sim.markers[m] for m in markers], 1)
                          - np.nan_to_num(p_meas) - dp, 0.0)[seen] if markers else dp[seen],
-                length_noise, marker_noise)
+                length_noise, marker_noise, sigma is not None)
+        else:
+            left_out = ("without inertia (--no-inertia, inertia=False): the fitted motion "
+                        "simulated with the rod's inertia did not converge, so whether leaving "
+                        "it out matters is not known")
     warning = joined(moving, warning, coarse and f"at the fitted damping {coarse}", left_out)
     return Identified({"damping": eta}, *errors(dp, dy), *errors(*initial),
                       bool(found.success) and not edge, evaluations[0],

@@ -19,7 +19,7 @@ import numpy as np
 from .estimation import Noise, Unknown, problem
 from .inputs import WALK, check_unknowns
 from .online import OnlineEstimator
-from .problem import MISFIT
+from .problem import MISFIT, MISFIT_QUANTILE
 from .readings import (SKIPPED_SHOWN, LogSummary, ReadingsError, Sample, check_units,
                        has_time, located, motion_step_error, output_header, output_row,
                        output_rows, parse_header, parse_row, read_readings,
@@ -175,10 +175,15 @@ def disagreeing(estimates: Sequence[SampleEstimate]) -> int:
 
 
 def misfit_rows(n: int, rows: int) -> str:
-    """A log's note that ``n`` of its ``rows`` rows disagree beyond their noise, or ''."""
+    """A log's note that ``n`` of its ``rows`` rows disagree beyond their noise, or '' where
+    chance explains as many (each row's test lets 1 − MISFIT_QUANTILE of rows through: a
+    count within the binomial's MISFIT_QUANTILE quantile; the rows keep their notes)."""
+    from scipy.stats import binom
+    if n <= binom.ppf(MISFIT_QUANTILE, rows, 1 - MISFIT_QUANTILE):
+        return ""
     return (f"{n} of {rows} rows: {MISFIT} (their note column says by how "
             f"much; is a tendon swapped or mislabelled, a force's X or direction wrong, a load "
-            f"not given?)") if n else ""
+            f"not given?)")
 
 
 def _skipped(prob, s: Sample) -> SampleEstimate:

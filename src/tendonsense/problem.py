@@ -324,8 +324,9 @@ def _scaled(xp, dz_dm, n_lengths, tensions, length, tension):
 #: a least-squares estimate's length misfit whose χ² is above this quantile of its
 #: distribution under the sensor noise alone is more than that noise explains
 MISFIT_QUANTILE = 0.999
-#: the words that open a misfit's note (:func:`misfit_notes`)
+#: the words that open a misfit's note (:func:`misfit_notes`), and those that close it
 MISFIT = "the readings disagree beyond their noise"
+NOISE_ALONE = "the ± assumes the noise alone"
 
 
 def misfit_notes(Jz, JT, misfit, tensions, noise: Noise) -> list[str]:
@@ -365,8 +366,15 @@ def misfit_notes(Jz, JT, misfit, tensions, noise: Noise) -> list[str]:
             f"{MISFIT}: the measured lengths are met to {rms[k] * 1e3:.3g} mm RMS, "
             f"{np.sqrt(chi2[k] / dof[k]):.2g} times what the length and tension noise explain "
             f"(is a tendon swapped or mislabelled, a force's X or direction wrong, a load not "
-            f"given?); the ± assumes the noise alone")
+            f"given?); {NOISE_ALONE}")
     return notes
+
+
+def misfit_part(note: str) -> str:
+    """The misfit's note (:func:`misfit_notes`) within ``note``, or ''."""
+    start = note.find(MISFIT)
+    end = note.find(NOISE_ALONE, start)
+    return note[start:end + len(NOISE_ALONE)] if start >= 0 and end >= 0 else ""
 
 
 def misfit_note(Jz, JT, misfit, tensions, noise: Noise) -> str:

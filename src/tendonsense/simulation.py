@@ -127,8 +127,9 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     interpolation of q and q̇.
     The last sample is at ``duration``, also where ``output_dt`` does not divide it.
     ``at``: sample at these times (s, increasing, in (0, duration]) instead of every
-    ``output_dt`` (e.g. a log's own time stamps). ``inertia=False`` drops ``M q̈`` and
-    ``C q̇`` (the quasi-static limit with damping; needs ``[rod] damping`` > 0).
+    ``output_dt`` (e.g. a log's own time stamps); without them, a ``duration`` more than a
+    minute past the loads' last change is refused as a unit slip. ``inertia=False`` drops
+    ``M q̈`` and ``C q̇`` (the quasi-static limit with damping; needs ``[rod] damping`` > 0).
     ``sliding`` {tendon: in|out|follow}: the sense of a tendon's friction; ``follow`` (the
     default) as the estimators take it: pulled in while its tension rises, stuck when it
     turns, paid out once it has fallen through the band (a tendon released); ``in`` is eq. 10
@@ -178,8 +179,8 @@ def simulate(robot: Robot, tensions: Mapping[str, float | tuple] | None = None,
     if not X:  # one zero force at the base: one program with and without point forces
         X, F_entries = [0.0], [np.zeros(3)]
     F_times, F = _table(F_entries, 3, [f"point force {i + 1}" for i in range(len(F_entries))])
-    if error := inputs.duration_error("duration", duration, max(
-            inputs.last_change(T_times, T), inputs.last_change(F_times, F))):
+    if at is None and (error := inputs.duration_error("duration", duration, max(
+            inputs.last_change(T_times, T), inputs.last_change(F_times, F)))):
         raise ValueError(error)
     schedule = Schedule(T_times, T[:, :, 0], F_times, F, np.array(X, float),
                         np.asarray(robot.gravity, float),
