@@ -176,7 +176,7 @@ def test_readings_the_filter_cannot_explain_are_said():
     that follows the tension the filter's innovations stay within the noise (no sample noted
     where 0.1 % of 461 would be by chance), while a released tendon estimated with the
     pulled-in law is said to disagree beyond the noise on most of the release, and only
-    there — where that law's weight is off by ~90 % with a σ of a few per cent."""
+    there."""
     robot = _robot(0.03)
     sim = _log(robot, (0.0, 0.0, -WEIGHT))
     cols = sim.readings(1e-4, 0.01, seed=0)

@@ -1443,8 +1443,7 @@ def test_a_force_the_measured_tendons_cannot_see_is_named(prototype):
 def test_a_log_says_misfits_only_beyond_chance():
     """Each row's misfit test lets 0.1 % of rows through by chance: a log's summary counts
     them only where there are more than the binomial's 99.9 % quantile (4 of 3,103 rows is
-    chance, and said every time: the paper's Fig. 7 logs under --dynamic); the rows keep their
-    notes."""
+    chance: the paper's Fig. 7 logs under --dynamic have 0–4); the rows keep their notes."""
     from tendonsense.logs import misfit_rows
     assert misfit_rows(4, 3103) == "" and misfit_rows(1, 12) == "" and misfit_rows(0, 5) == ""
     assert misfit_rows(2, 12).startswith("2 of 12 rows: the readings disagree beyond")

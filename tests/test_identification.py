@@ -274,8 +274,8 @@ def test_damping_from_a_step():
 def test_a_damping_fit_without_inertia_says_what_inertia_would_change():
     """A rod with mass pulled in 0.2 s (simulated with its inertia, 0.1 mm of length noise),
     fitted without inertia: η comes out more than 2 σ off (3.2 σ with this seed, 5.2 with the
-    next), within the bound the warning gives (√Δχ² of what inertia moves, times σ: 37); a
-    move within the noise is not said."""
+    next), within the bound the warning gives (√Δχ² of what inertia moves, times σ); a move
+    within the noise is not said."""
     import re
 
     from tendonsense.identification import identify_damping, inertia_left_out

@@ -587,10 +587,10 @@ def _writable(path, what: str) -> None:
     if p.is_dir():
         raise ValueError(f"{what} {path}: is a folder, not a file")
     if not folder.is_dir():
-        above = next((f for f in folder.parents if f.exists()), Path("."))  # the first there
-        raise ValueError(f"{what} {path}: {str(folder if folder.exists() else above)!r} is a "
-                         f"file, not a folder" if (folder.exists() or not above.is_dir())
-                         else f"{what} {path}: no folder {str(folder)!r}")
+        there = next((f for f in (folder, *folder.parents) if f.exists()), None)
+        if there is not None and not there.is_dir():
+            raise ValueError(f"{what} {path}: {str(there)!r} is a file, not a folder")
+        raise ValueError(f"{what} {path}: no folder {str(folder)!r}")
     if not os.access(folder, os.W_OK):
         raise ValueError(f"{what} {path}: the folder {str(folder)!r} is not writable")
 
