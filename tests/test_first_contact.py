@@ -1444,7 +1444,12 @@ def test_a_log_says_misfits_only_beyond_chance():
     """Each row's misfit test lets 0.1 % of rows through by chance: a log's summary counts
     them only where there are more than the binomial's 99.9 % quantile (4 of 3,103 rows is
     chance: the paper's Fig. 7 logs under --dynamic have 0–4); the rows keep their notes."""
-    from tendonsense.logs import misfit_rows
+    from scipy.stats import binom
+
+    from tendonsense.logs import chance, misfit_rows
+    for rows in (1, 12, 301, 3103, 10**5, 10**6):
+        for p, q in ((1e-3, 0.999), (0.3, 0.5)):
+            assert chance(rows, p, q) == binom.ppf(q, rows, p), (rows, p, q)
     assert misfit_rows(4, 3103) == "" and misfit_rows(1, 12) == "" and misfit_rows(0, 5) == ""
     assert misfit_rows(2, 12).startswith("2 of 12 rows: the readings disagree beyond")
     assert misfit_rows(12, 3103).startswith("12 of 3103 rows")

@@ -38,7 +38,6 @@ from typing import Mapping, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.special import chdtri
 
 from .compiled import Program
 from .dynamics import free_modes
@@ -250,6 +249,7 @@ class MotionFilter:
                                model.n_tendons * turns(model.values), len(prob.measured), 1,
                                1]).tolist()
         # a sample whose normalised innovation is beyond this is more than the noise explains
+        from scipy.special import chdtri  # (here: SciPy's import is not every run's)
         self._nis_limit = float(chdtri(len(prob.measured), 1 - MISFIT_QUANTILE))
         self.reset()
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import itertools
+import math
 import os
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -174,12 +175,24 @@ def disagreeing(estimates: Sequence[SampleEstimate]) -> int:
     return sum(MISFIT in e.note for e in estimates)
 
 
+def chance(rows: int, p: float, q: float) -> int:
+    """The ``q`` quantile of the binomial distribution of ``rows`` trials of probability
+    ``p``: the fewest k with P(X ≤ k) ≥ q (its terms summed in log form: no SciPy, whose
+    statistics take a second to import, at the end of every log)."""
+    log_term, total = rows * math.log1p(-p), 0.0
+    for k in range(rows + 1):
+        total += math.exp(log_term)
+        if total >= q:
+            return k
+        log_term += math.log((rows - k) / (k + 1) * p / (1 - p))
+    return rows
+
+
 def misfit_rows(n: int, rows: int) -> str:
     """A log's note that ``n`` of its ``rows`` rows disagree beyond their noise, or '' where
     chance explains as many (each row's test lets 1 − MISFIT_QUANTILE of rows through: a
     count within the binomial's MISFIT_QUANTILE quantile; the rows keep their notes)."""
-    from scipy.stats import binom
-    if n <= binom.ppf(MISFIT_QUANTILE, rows, 1 - MISFIT_QUANTILE):
+    if n <= chance(rows, 1 - MISFIT_QUANTILE, MISFIT_QUANTILE):
         return ""
     return (f"{n} of {rows} rows: {MISFIT} (their note column says by how "
             f"much; is a tendon swapped or mislabelled, a force's X or direction wrong, a load "
