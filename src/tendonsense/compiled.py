@@ -196,7 +196,7 @@ def _announce() -> None:
     root = cache_dir()
     kept = (f"once for this robot's structure on this machine, then kept in {root / 'programs'}"
             if root else "every run: TENDONSENSE_CACHE_DIR is empty, so none are kept")
-    hook(f"tendonsense: compiling the programs this run needs (5-20 s; {kept})")
+    hook(f"tendonsense: compiling the programs this run needs (5-30 s; {kept})")
 
 
 @lru_cache(maxsize=1)
