@@ -192,8 +192,9 @@ class State(NamedTuple):
 def _equations(structure: Structure, values: Values, inertia: bool):
     """``residual(q, base_q, base_v, κh, drive, μ) -> (r, v, a)``: the stage equation
     ``y = base + κh ẏ(y)`` with q the unknown, in force units (v and a follow from q), and
-    ``rate(q, drive, μ)``: q̈ at rest at q (q̇ without inertia); μ the tendons' signed
-    friction coefficients."""
+    ``rate(q, drive, μ)``: q̈ at rest at q (q̇ without inertia), and with inertia
+    ``matrix(q, κh, drive, μ)``: the stage's iteration matrix; μ the tendons' signed friction
+    coefficients."""
     K = values.young_modulus * values.stiffness()
     D = values.damping_matrix()
 
@@ -209,7 +210,15 @@ def _equations(structure: Structure, values: Values, inertia: bool):
         f = _load(structure, values._replace(friction=mu), q, drive) - K @ q
         return jnp.linalg.solve(mass_matrix(structure, values, q) if inertia else D, f)
 
-    return residual, rate
+    def matrix(q, kh, drive, mu):
+        # M(q)/(κh)² + D/(κh) + K − ∂load/∂q: the residual's exact Jacobian but for the
+        # derivatives of the inertial force M(q) q̈ + C(q, q̇) q̇ in q and q̇ at fixed q̈
+        # (O(κh) against M/(κh)²)
+        m = values._replace(friction=mu)
+        J = K - jax.jacfwd(lambda q: _load(structure, m, q, drive))(q)
+        return J + D / kh + mass_matrix(structure, values, q) / kh**2
+
+    return residual, rate, matrix
 
 
 def _hermite(s0: State, s1: State, t):
@@ -246,9 +255,7 @@ def integrator(structure: Structure, inertia: bool):
     stage_tol = max(num.tolerance, STAGE_TOLERANCE)
 
     def parts(values, schedule):
-        residual, _ = _equations(structure, values, inertia)
-        K = values.young_modulus * values.stiffness()
-        D = values.damping_matrix()
+        residual, _, matrix = _equations(structure, values, inertia)
         sc = scaling(values, ())
         floor = values.energy_floor * jnp.sqrt(values.young_modulus)
 
@@ -260,13 +267,7 @@ def integrator(structure: Structure, inertia: bool):
             if not inertia:  # the stage residual's exact Jacobian
                 J = jax.jacfwd(lambda q: scaled(q, base_q, base_v, kh, t, mu)[0])(q)
                 return jax.scipy.linalg.lu_factor(J)
-            # M(q)/(κh)² + D/(κh) + K − ∂load/∂q: the exact Jacobian but for the
-            # derivatives of the inertial force M(q) q̈ + C(q, q̇) q̇ in q and q̇ at fixed q̈
-            # (O(κh) against M/(κh)²)
-            drive, m = schedule.drive(t), values._replace(friction=mu)
-            J = K - jax.jacfwd(lambda q: _load(structure, m, q, drive))(q)
-            J = J + D / kh + mass_matrix(structure, values, q) / kh**2
-            return jax.scipy.linalg.lu_factor(sc.L_inv @ J)
+            return jax.scipy.linalg.lu_factor(sc.L_inv @ matrix(q, kh, schedule.drive(t), mu))
 
         def size(q):
             return jnp.linalg.norm(sc.L_inv @ (values.young_modulus
