@@ -862,7 +862,7 @@ def _check_estimate(args, robot, tensions, displacements):
         raise UsageError("tendonsense estimate: --json: the rows go to standard output as "
                          "CSV; give -o OUT.csv for the rows in a file and a JSON summary")
     if args.readings != "-":
-        from .readings import (has_time, motion_step_error, read_readings,
+        from .readings import (has_time, lagging, motion_step_error, read_readings,
                                released_at_start, stuck_rows_error)
         args.log = read_readings(args.readings, robot)
         inputs.check_unknowns(robot, args.log[0], args.unknown)
@@ -876,6 +876,9 @@ def _check_estimate(args, robot, tensions, displacements):
                 print(f"tendonsense: {args.readings}: note: {note}", file=sys.stderr)
         elif error := stuck_rows_error(args.readings, args.log[1]):
             raise ReadingsError(error)
+        if not args.dynamic and (note := lagging(args.log[1], robot, args.log[0],
+                                                 args.length_noise)):
+            print(f"tendonsense: {args.readings}: note: {note}", file=sys.stderr)
     _no_damping(args, robot)
 
 

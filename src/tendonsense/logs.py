@@ -22,10 +22,10 @@ from .inputs import WALK, check_unknowns
 from .online import OnlineEstimator
 from .problem import MISFIT, MISFIT_QUANTILE
 from .readings import (SKIPPED_SHOWN, LogSummary, ReadingsError, Sample, check_units,
-                       has_time, located, motion_step_error, output_header, output_row,
-                       output_rows, parse_header, parse_row, read_readings,
-                       released_at_start, stuck_rows_error, time_back,
-                       with_sliding, write_csv_atomic)
+                       has_time, lagging, located, motion_step_error, output_header,
+                       output_row, output_rows, parse_header, parse_row, read_readings,
+                       released_at_start, stuck_rows_error, time_back, with_sliding,
+                       write_csv_atomic)
 from .result import joined
 from .robot import Robot
 from .sliding import GIVEN, FrictionHistory, band_note, band_range
@@ -257,6 +257,7 @@ def estimate_file(robot: Robot, log: str | Path, out: str | Path, unknowns: Sequ
                       skipped_rows=tuple(bad[:SKIPPED_SHOWN]),
                       note=joined("" if located(unknowns) else released_at_start(
                           samples, robot, noise.tension),
+                          "" if dynamic else lagging(samples, robot, measured, noise.length),
                           misfit_rows(disagreeing(results), len(results))))
 
 

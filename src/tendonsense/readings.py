@@ -610,6 +610,62 @@ def released_at_start(samples: Sequence[Sample], robot: Robot, tension_noise: fl
     return ""
 
 
+#: a damped robot's shape lags its readings by about τ ẏ (τ = 3η/E): a file log estimated
+#: at rest is noted where that lag of a measured length exceeds this many length noises
+LAG_NOTE = 2.0
+
+
+def _slopes(t: np.ndarray, v: np.ndarray, w: int, block: int = 4096) -> np.ndarray:
+    """Least-squares slopes of ``v`` (N, k) against ``t`` (N,) over every ``w`` consecutive
+    rows (N − w + 1, k), each window centred on its own means (``block`` windows at a time)."""
+    out = []
+    for a in range(0, t.size - w + 1, block):
+        tw = np.lib.stride_tricks.sliding_window_view(t[a:a + block + w - 1], w)
+        vw = np.lib.stride_tricks.sliding_window_view(v[a:a + block + w - 1], w, axis=0)
+        tw = tw - tw.mean(axis=1, keepdims=True)
+        vw = vw - vw.mean(axis=2, keepdims=True)
+        out.append(np.einsum("bw,bkw->bk", tw, vw) / np.sum(tw * tw, axis=1)[:, None])
+    return np.concatenate(out)
+
+
+def lagging(samples: Sequence[Sample], robot: Robot, measured: Sequence[str],
+            length_noise: float) -> str:
+    """A note where a log, estimated at rest, moves a damped robot faster than its shape
+    follows: the shape lags the readings by about τ = 3η/E, so that a measured length is
+    short of its equilibrium by τ|ẏ| and the estimate reads that as a force (eq. 7 holds at
+    rest only). ẏ is each measured length change's rate, fitted over as many rows (at their
+    median time step) as make the fit's noise times τ a third of ``length_noise``; noted
+    where τ|ẏ| exceeds :data:`LAG_NOTE` length noises. Nothing without time stamps or
+    damping."""
+    tau = 3 * robot.rod.damping / robot.rod.young_modulus
+    good = [s for s in samples if not s.error and s.time is not None]
+    if tau <= 0 or len(good) < 3 or not measured:
+        return ""
+    t = np.array([s.time for s in good])
+    dt = np.median(np.diff(t))
+    if not dt > 0 or not np.all(np.diff(t) > 0):
+        return ""
+    # slope noise σ √(12 / (w (w² − 1))) / Δt, times τ, under σ/3
+    w = 3
+    while w * (w * w - 1) < 108 * (tau / dt) ** 2 and w < len(good):
+        w += 1
+    if w * (w * w - 1) < 108 * (tau / dt) ** 2:
+        return ""
+    y = np.array([[s.displacements[n] for n in measured] for s in good])
+    lag = tau * np.abs(_slopes(t, y, w)) / length_noise
+    over = np.flatnonzero(lag.max(axis=1) > LAG_NOTE)
+    if not over.size:
+        return ""
+    k, j = np.unravel_index(np.argmax(lag), lag.shape)
+    rows = [good[i + w // 2].row for i in (over[0], over[-1], k)]
+    return (f"the robot moves: with its damping (τ = 3η/E = {tau:.3g} s) the shape lags the "
+            f"readings, {measured[j]}'s length by up to {lag[k, j] * length_noise * 1e3:.3g} mm "
+            f"(τ × its rate, at row {rows[2]}: {lag[k, j]:.3g} times the length noise; more "
+            f"than {LAG_NOTE:g} times on {over.size} rows between rows {rows[0]} and "
+            f"{rows[1]}): an estimate at rest reads that lag as a force there (estimate in "
+            f"motion: --dynamic)")
+
+
 def shape_rmse(result, measured: dict[str, np.ndarray]) -> float:
     """Root-mean-square distance (m) between estimated and measured markers."""
     d = [np.sum((result.markers[m] - p) ** 2) for m, p in measured.items()]
