@@ -178,6 +178,7 @@ def test_the_command_line_on_many_logs(client, logs, tmp_path, capsys):
     assert code == 1
     err = captured.err.strip().splitlines()
     assert len(err) == 1 and "broken.csv" in err[0] and "displacement_t9" in err[0], err
+    assert err[0].startswith(f"tendonsense estimate: error: {folder / 'broken.csv'}: "), err
     summary = json.loads(captured.out)
     assert summary["failed"] == [str(folder / "broken.csv")]
     assert summary["samples"] == sum(f.size for f in forces.values())
@@ -342,7 +343,7 @@ def test_a_sweep_of_paid_out_tendons(where, client, prototype, tmp_path, capsys)
     with pytest.raises(ValueError, match="sliding t1=stuck"):
         solve_here(prototype, {"t1": T}, sliding={"t1": "stuck"})
     assert cli.main(["sweep", PROTOTYPE, tmp_path / "sets.csv", "-o", tmp_path / "r2.csv",
-                     "--sliding", "t1=stuck"]) == 2
+                     "--sliding", "t1=stuck"]) == 1  # a value refused: bad input
     assert not (tmp_path / "r2.csv").exists()
 
 

@@ -811,6 +811,13 @@ def test_time_stamps_in_milliseconds_are_caught(prototype, tmp_path):
         estimate_readings(prototype, measured, samples, [PointForceUnknown(0.25, (0, 0, -1))],
                           dynamic=True)
     assert not (tmp_path / "e.csv").exists() and not (tmp_path / "f.toml").exists()
+    # a 1 kHz log in ms: rows exactly 1 apart (it was taken, and a damping fit on it ran for
+    # minutes)
+    khz = tmp_path / "khz.csv"
+    khz.write_text("time,tension_t1,tension_t2,tension_t3,displacement_t1\n"
+                   + "".join(f"{k},2,0,0,-0.003\n" for k in range(5)))
+    with pytest.raises(ValueError, match="rows 1 s apart"):
+        identify_damping(prototype, read_readings(khz, prototype)[1])
     schedule = tmp_path / "ms_ramp.csv"
     schedule.write_text("time,tension_t1\n0,1.9\n500,4.78\n1500,1.9\n")
     p = cli("simulate", PROTOTYPE, "--tensions", schedule, "--duration", "0.05", "-o",

@@ -347,3 +347,8 @@ def test_every_kind_of_residual_far_below_its_noise_is_said():
     # one kind far below its noise does not hide the rest's misfit
     _, mixed = misfit_of({"marker": (1e-3 * markers, 1e-3), "length": (30 * lengths, 1e-4)}, 3)
     assert "the marker residuals are" in mixed and "the model does not fit" in mixed, mixed
+    # and names the kind beyond its noise (it said the noise was smaller than assumed, then
+    # larger, without saying which)
+    assert "the marker noise is smaller than assumed" in mixed, mixed
+    assert "(the marker ones 0.0009, the length ones 35 times theirs)" in mixed, mixed
+    assert "or the length noise is larger than assumed" in mixed, mixed

@@ -62,17 +62,31 @@ class UsageError(Exception):
     pass
 
 
+def _given_once(action, parser, namespace):
+    """A usage error where the option of ``action`` was given before (named by its visible
+    option, not a hidden alias)."""
+    given = namespace.__dict__.setdefault("_given", set())
+    if action.dest in given:
+        shown = next((a for a in parser._actions if a.dest == action.dest
+                      and a.help != argparse.SUPPRESS), action)
+        parser.error(f"{'/'.join(shown.option_strings)} given twice")
+    given.add(action.dest)
+
+
 class _Once(argparse._StoreAction):
     """An option with a value that may be given once (a second one is a usage error, never
     silently the last)."""
 
     def __call__(self, parser, namespace, values, option_string=None):
-        given = namespace.__dict__.setdefault("_given", set())
-        if self.dest in given:  # named by its visible option (not a hidden alias)
-            shown = next((a for a in parser._actions if a.dest == self.dest
-                          and a.help != argparse.SUPPRESS), self)
-            parser.error(f"{'/'.join(shown.option_strings)} given twice")
-        given.add(self.dest)
+        _given_once(self, parser, namespace)
+        super().__call__(parser, namespace, values, option_string)
+
+
+class _OnceFlag(argparse._StoreTrueAction):
+    """A switch that may be given once (``--dynamic --dynamic`` is a slip)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        _given_once(self, parser, namespace)
         super().__call__(parser, namespace, values, option_string)
 
 
@@ -100,17 +114,41 @@ class _Parser(argparse.ArgumentParser):
             raise BadValue(f"{self.prog}: {exc}") from None
 
     def parse_args(self, args=None, namespace=None):
-        """As argparse's, an unrecognized argument named with the command it was given to."""
-        known, extras = self.parse_known_args(args, namespace)
+        """As argparse's, an unrecognized argument named with the command it was given to (and
+        the option it may be a slip for), also where a required option then seems missing."""
+        args = sys.argv[1:] if args is None else [str(a) for a in args]
+        try:
+            known, extras = self.parse_known_args(args, namespace)
+        except UsageError as exc:
+            if "the following arguments are required" in str(exc):
+                self._unrecognized(args)
+            raise
         if extras:
-            prog = " ".join(filter(None, (self.prog, getattr(known, "command", None))))
-            raise UsageError(f"{prog}: unrecognized arguments: {' '.join(extras)} (see {prog} "
-                             f"--help)")
+            self._unrecognized(args, getattr(known, "command", None), extras)
         return known
 
+    def _unrecognized(self, args, command=None, extras=None):
+        """Raise the usage error naming ``extras``, or the ``--options`` among ``args`` that
+        the command does not have (none: return)."""
+        sub = next((a.choices for a in self._actions
+                    if isinstance(a, argparse._SubParsersAction)), {})
+        command = command or next((a for a in args if a in sub), None)
+        options = list(sub[command]._option_string_actions) if command in sub else []
+        bad = [a.split("=")[0] for a in args if a.startswith("--") and a != "--" and not any(
+            o.startswith(a.split("=")[0]) for o in options)]
+        if extras is None and not bad:
+            return
+        import difflib
+        prog = " ".join(filter(None, (self.prog, command)))
+        slips = [f"{b}: did you mean {m[0]}? " for b in bad
+                 if (m := difflib.get_close_matches(b, options, n=1))]
+        raise UsageError(f"{prog}: unrecognized arguments: {' '.join(extras or bad)} "
+                         f"({''.join(slips)}see {prog} --help)")
+
     def add_argument(self, *names, **kwargs):
-        if names and names[0].startswith("-") and kwargs.get("action", "store") == "store":
-            kwargs["action"] = _Once
+        if names and names[0].startswith("-"):
+            kwargs["action"] = {"store": _Once, "store_true": _OnceFlag}.get(
+                kwargs.get("action", "store"), kwargs.get("action"))
         return super().add_argument(*names, **kwargs)
 
 
@@ -597,14 +635,16 @@ def _writable(path, what: str) -> None:
 
 def _check(args, robot) -> None:
     """Every argument against the robot, and every output path, by the rules of
-    :mod:`tendonsense.inputs` (nothing computed, JAX not started)."""
+    :mod:`tendonsense.inputs` (nothing computed, JAX not started); the notes the checks
+    find are said once every check has passed."""
     cmd = args.command
+    args.notes = []
     if cmd in ("solve", "fk", "estimate", "sweep"):
         args.sliding = _once(args.sliding, "--sliding")
         inputs.sliding(robot, args.sliding)
         stuck = [n for n, d in args.sliding.items() if d == "stuck"]
         if stuck and cmd != "estimate":
-            raise UsageError(f"tendonsense {cmd}: --sliding {stuck[0]}=stuck: the tension inside "
+            raise ValueError(f"tendonsense {cmd}: --sliding {stuck[0]}=stuck: the tension inside "
                              f"a stuck tendon depends on its history; give in or out "
                              f"(estimate takes stuck and gives the range of forces)")
         if args.sliding and getattr(args, "readings", None) is not None:
@@ -671,6 +711,8 @@ def _check(args, robot) -> None:
         raise ValueError(error)
     _not_an_input(args)
     _file_kinds(args)
+    for note in args.notes:
+        print(f"tendonsense: {note}", file=sys.stderr)
 
 
 def _file_kinds(args) -> None:
@@ -783,13 +825,13 @@ def _check_simulate(args, robot):
     firsts = [t[0] for t, _ in schedule.values()]
     nexts = [t[1] for t, _ in schedule.values() if t.size > 1]
     if firsts and min(firsts) >= args.duration:
-        print(f"tendonsense: note: {args.tensions}: its first row is at {min(firsts):g} s, not "
-              f"before --duration {args.duration:g} s: the tensions stay at that row's "
-              f"throughout (times are in seconds)", file=sys.stderr)
+        args.notes.append(f"note: {args.tensions}: its first row is at {min(firsts):g} s, not "
+                          f"before --duration {args.duration:g} s: the tensions stay at that "
+                          f"row's throughout (times are in seconds)")
     elif nexts and min(nexts) > args.duration:
-        print(f"tendonsense: note: {args.tensions}: its second row is at {min(nexts):g} s, after "
-              f"--duration {args.duration:g} s: only the start of its first ramp is simulated "
-              f"(times are in seconds)", file=sys.stderr)
+        args.notes.append(f"note: {args.tensions}: its second row is at {min(nexts):g} s, "
+                          f"after --duration {args.duration:g} s: only the start of its first "
+                          f"ramp is simulated (times are in seconds)")
     args.schedule = {**args.tension, **schedule}
     if error := inputs.duration_error("--duration", args.duration, max(
             [inputs.last_change(t, v) for t, v in schedule.values()], default=0.0)):
@@ -873,20 +915,20 @@ def _check_estimate(args, robot, tensions, displacements):
             raise ReadingsError(error)
         if not any(getattr(u, "located", False) for u in args.unknown):
             if note := released_at_start(args.log[1], robot, args.tension_noise):
-                print(f"tendonsense: {args.readings}: note: {note}", file=sys.stderr)
+                args.notes.append(f"{args.readings}: note: {note}")
         elif error := stuck_rows_error(args.readings, args.log[1]):
             raise ReadingsError(error)
         if not args.dynamic and (note := lagging(args.log[1], robot, args.log[0],
                                                  args.length_noise)):
-            print(f"tendonsense: {args.readings}: note: {note}", file=sys.stderr)
+            args.notes.append(f"{args.readings}: note: {note}")
     _no_damping(args, robot)
 
 
 def _no_damping(args, robot):
     """The note that --dynamic on a robot without damping filters the quasi-static model."""
     if args.dynamic and robot.rod.damping <= 0:
-        print(f"tendonsense: note: {args.robot} has no [rod] damping: --dynamic filters the "
-              f"quasi-static model", file=sys.stderr)
+        args.notes.append(f"note: {args.robot} has no [rod] damping: --dynamic filters the "
+                          f"quasi-static model")
 
 
 #: the characters of a --readings pattern
@@ -1428,8 +1470,8 @@ def _logs(args, robot) -> int:
             prog.close()
     failed = [s for s in done if s.error]
     for s in done:
-        if s.error:
-            print(f"tendonsense: {s.error}", file=sys.stderr)
+        if s.error:  # (the others written: the command goes on)
+            print(f"tendonsense estimate: error: {s.error}", file=sys.stderr)
         if s.note:
             print(f"tendonsense: {s.log}: note: {s.note}", file=sys.stderr)
         for row, why in s.skipped_rows:

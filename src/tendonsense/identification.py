@@ -378,7 +378,7 @@ def misfit_of(kinds: dict[str, tuple[np.ndarray, float]], n_params: int
         return None, ""
     total = sum(c for c, _ in chi2.values())
     ratio = float(np.sqrt(total / dof))
-    small = []  # every kind whose noise is too large
+    small, too_large = [], []  # every kind whose noise is too large, its name
     for k, (c, m) in chi2.items():
         dof_k = m - n_params * m / n
         low = distribution.ppf(1 - MISFIT_QUANTILE, dof_k) if dof_k >= 1 else 0.0
@@ -386,15 +386,20 @@ def misfit_of(kinds: dict[str, tuple[np.ndarray, float]], n_params: int
             small.append(f"the {k} residuals are {np.sqrt(c / dof_k):.2g} times the {k} noise "
                          f"assumed ({kinds[k][1]:g} m), where such noise gives at least "
                          f"{np.sqrt(low / dof_k):.2g} times over {m} of them")
-    said = [f"{'; '.join(small)}: the noise is smaller than assumed, and the ± values, which "
-            f"assume it, are too wide"] if small else []
+            too_large.append(k)
+    said = [f"{'; '.join(small)}: the {' and '.join(too_large)} noise is smaller than "
+            f"assumed, and the ± values, which assume it, are too wide"] if small else []
     high = distribution.ppf(MISFIT_QUANTILE, dof)
     if total > high:  # (said as well: one kind's small noise must not hide a fit that misses
-        # the rest)
-        said.append(f"the residuals are {ratio:.2g} times the noise assumed, where noise "
+        # the rest; each kind's share named, so that the two do not read as one noise)
+        seen = {k: (c, m) for k, (c, m) in chi2.items() if m}
+        each = "" if len(seen) < 2 else " (" + ", ".join(
+            f"the {k} ones {np.sqrt(c / m):.2g}" for k, (c, m) in seen.items()) + " times theirs)"
+        above = [k for k, (c, m) in seen.items() if c > m] or list(seen)
+        said.append(f"the residuals are {ratio:.2g} times the noise assumed{each}, where noise "
                     f"explains at most {np.sqrt(high / dof):.2g} times over {n} of them: the "
                     f"model does not fit the data (a parameter not fitted, a load not given, a "
-                    f"unit) or the noise is larger than assumed (the marker and length noise "
+                    f"unit) or the {' and '.join(above)} noise is larger than assumed (as "
                     f"given); the ± values assume that noise alone")
     return ratio, "; and ".join(said)
 

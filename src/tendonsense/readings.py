@@ -340,9 +340,9 @@ def check_units(path, columns: Columns, robot: Robot, rows):
                                 f"off the robot, such as: {why[0]}")
 
 
-#: rows of a log in motion are at most this far apart (median, s): farther, a rod settles
+#: rows of a log in motion are less than this far apart (median, s): as far, a rod settles
 #: between them (the damped prototype within 0.1 s), and time stamps so far apart are taken
-#: to be in another unit
+#: to be in another unit (a 1 kHz log stamped in ms: 1 apart)
 MAX_MOTION_STEP = 1.0
 
 
@@ -350,7 +350,7 @@ def motion_step_error(source, samples: Sequence[Sample],
                       static: str = " (a static log is estimated without --dynamic)"
                       ) -> str | None:
     """Why the time stamps of ``samples`` cannot be those of a motion, or None: a row whose
-    stamp is not after the row before's, or rows more than :data:`MAX_MOTION_STEP` apart (the
+    stamp is not after the row before's, or rows :data:`MAX_MOTION_STEP` or more apart (the
     median); ``static`` says what to do with a log that is no motion."""
     rows = [s for s in samples if s.time is not None and not s.error]
     t = np.array([s.time for s in rows], float)
@@ -359,7 +359,7 @@ def motion_step_error(source, samples: Sequence[Sample],
         return (f"{source}: row {rows[k].row}: time {t[k]:g} s does not follow the row before "
                 f"({t[k - 1]:g} s): a motion's rows must be in time order, each stamp once")
     step = float(np.median(np.diff(t))) if t.size > 1 else 0.0
-    if step > MAX_MOTION_STEP:
+    if step >= MAX_MOTION_STEP:
         return (f"{source}: rows {step:g} s apart (the median): a rod settles within a second, "
                 f"so the time stamps are not seconds (milliseconds?) or the log is not a "
                 f"motion{static}")
