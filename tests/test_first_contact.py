@@ -494,7 +494,13 @@ def test_a_header_only_log_is_an_error(tmp_path):
     (("sweep", PROTOTYPE, ROOT / "examples" / "sweep_sets.csv", "-o", "o.png"), 1,
      "-o/--results o.png: writes a CSV table, not a figure"),  # (it wrote the CSV there)
     (("solve", PROTOTYPE, "--tension", "t1=2", "--tensoin", "t2=1"), 2,
-     "unrecognized arguments: --tensoin t2=1"),
+     "unrecognized arguments: --tensoin t2=1 (--tensoin: did you mean --tension? see "),
+    # a required option mistyped was said to be missing
+    (("estimate", PROTOTYPE, "--displacement", "t1=-0.005", "--tension", "t1=2", "--unknwn",
+      "0.25,0,0,-1"), 2, "unrecognized arguments: --unknwn (--unknwn: did you mean --unknown?"),
+    (("solve", PROTOTYPE, "--tension", "t1=2", "--json", "--json"), 2, "--json given twice"),
+    (("solve", PROTOTYPE, "--tension", "t1=2", "--sliding", "t1=stuck"), 1,
+     "depends on its history"),  # a value refused, as --sliding t1=up (it was 2)
     (("solve", PROTOTYPE, "--tension", "t1=204"), 1, "tensions are in newtons"),  # gF
     (("simulate", PROTOTYPE, "--tension", "t1=2", "--duration", "1", "--noise-tension", "1.5",
       "-o", "s.csv"), 1, "--noise-tension 1.5: relative, must be a fraction under 1"),
@@ -1182,6 +1188,10 @@ def test_a_log_that_starts_with_a_release_is_noted(prototype, tmp_path):
     p = cli("estimate", PROTOTYPE, "--readings", cut, "--unknown", "0.25,0,0,-1", "-o",
             tmp_path / "o.csv")
     assert p.returncode == 0 and f"tendonsense: {cut}: note: {note}" in p.stderr
+    # a note only once every check passed (it came before the error of an output path)
+    p = cli("estimate", PROTOTYPE, "--readings", cut, "--unknown", "0.25,0,0,-1", "-o", cut)
+    assert p.returncode == 1 and len(p.stderr.strip().splitlines()) == 1, p.stderr
+    assert "would overwrite an input" in p.stderr
     assert estimate_file(prototype, cut, tmp_path / "o2.csv", [TIP]).note == note
     # a slack tendon's sensor offset falling (t2 at 12 then 8 mN beside t1 pulled) is no
     # release
