@@ -350,5 +350,6 @@ def test_every_kind_of_residual_far_below_its_noise_is_said():
     # and names the kind beyond its noise (it said the noise was smaller than assumed, then
     # larger, without saying which)
     assert "the marker noise is smaller than assumed" in mixed, mixed
-    assert "(the marker ones 0.0009, the length ones 35 times theirs)" in mixed, mixed
+    assert "residuals are 0.00092 times" in mixed, mixed  # one figure for one kind
+    assert "(the marker ones 0.00092, the length ones 35 times theirs)" in mixed, mixed
     assert "or the length noise is larger than assumed" in mixed, mixed

@@ -133,15 +133,22 @@ class _Parser(argparse.ArgumentParser):
         sub = next((a.choices for a in self._actions
                     if isinstance(a, argparse._SubParsersAction)), {})
         command = command or next((a for a in args if a in sub), None)
-        options = list(sub[command]._option_string_actions) if command in sub else []
+        parser = sub[command] if command in sub else self
+        options = parser._option_string_actions
         bad = [a.split("=")[0] for a in args if a.startswith("--") and a != "--" and not any(
             o.startswith(a.split("=")[0]) for o in options)]
         if extras is None and not bad:
             return
         import difflib
+
+        def named(option):  # as --help shows it (a hidden alias by its visible option)
+            dest = options[option].dest
+            return "/".join(next((a for a in parser._actions if a.dest == dest
+                                  and a.help != argparse.SUPPRESS), options[option]).option_strings)
+
         prog = " ".join(filter(None, (self.prog, command)))
-        slips = [f"{b}: did you mean {m[0]}? " for b in bad
-                 if (m := difflib.get_close_matches(b, options, n=1))]
+        slips = [f"{b}: did you mean {named(m[0])}? " for b in bad
+                 if (m := difflib.get_close_matches(b, list(options), n=1))]
         raise UsageError(f"{prog}: unrecognized arguments: {' '.join(extras or bad)} "
                          f"({''.join(slips)}see {prog} --help)")
 
@@ -913,14 +920,15 @@ def _check_estimate(args, robot, tensions, displacements):
                                 f"(--dynamic) needs each row's time stamp, s")
         if args.dynamic and (error := motion_step_error(args.readings, args.log[1])):
             raise ReadingsError(error)
-        if not any(getattr(u, "located", False) for u in args.unknown):
-            if note := released_at_start(args.log[1], robot, args.tension_noise):
-                args.notes.append(f"{args.readings}: note: {note}")
-        elif error := stuck_rows_error(args.readings, args.log[1]):
-            raise ReadingsError(error)
-        if not args.dynamic and (note := lagging(args.log[1], robot, args.log[0],
-                                                 args.length_noise)):
-            args.notes.append(f"{args.readings}: note: {note}")
+        if any(getattr(u, "located", False) for u in args.unknown):
+            if error := stuck_rows_error(args.readings, args.log[1]):
+                raise ReadingsError(error)
+        else:  # (a located force is estimated at rest only: no hint of --dynamic)
+            for note in (released_at_start(args.log[1], robot, args.tension_noise),
+                         "" if args.dynamic else lagging(args.log[1], robot, args.log[0],
+                                                          args.length_noise)):
+                if note:
+                    args.notes.append(f"{args.readings}: note: {note}")
     _no_damping(args, robot)
 
 
@@ -1723,8 +1731,8 @@ def _identify(args, robot) -> bool:
     for k, v in fit.parameters.items():
         print(f"  {_parameter_text(k, v, fit.sigma.get(k))}")
     if "damping" in fit.parameters:
-        print(f"  relaxation time τ = 3η/E: "
-              f"{3 * fit.parameters['damping'] / robot.rod.young_modulus * 1e3:.4g} ms")
+        fitted = robot.with_parameters(damping=fit.parameters["damping"]).rod
+        print(f"  relaxation time τ = 3η/E: {fitted.relaxation_time * 1e3:.4g} ms")
     for what, after, before in (("marker", fit.marker_rmse, fit.initial_marker_rmse),
                                 ("tendon-length", fit.displacement_rmse,
                                  fit.initial_displacement_rmse)):

@@ -307,7 +307,10 @@ class MotionFilter:
         friction, first = None, ""
         recent = [r for r in self._recent  # (a time before the last: refused below)
                   if time - HISTORY_WINDOW * (1 - 1e-6) < r[0] < time]
-        mean = np.where(T > 0, np.mean([T] + [r[1] for r in recent], axis=0), 0.0)
+        window = np.array([T] + [r[1] for r in recent], float)
+        live = window > 0  # (a slack reading is not in its tendon's mean)
+        mean = np.where(T > 0, np.sum(np.where(live, window, 0.0), axis=0)
+                        / np.maximum(live.sum(axis=0), 1), 0.0)
         if history is not None and not history.pulled(mean, given):
             friction = history.step(mean, None, given)  # at the last shape's turning angles
             values = values._replace(friction=friction * history.mu[:, None])  # copied in

@@ -392,10 +392,11 @@ def misfit_of(kinds: dict[str, tuple[np.ndarray, float]], n_params: int
     high = distribution.ppf(MISFIT_QUANTILE, dof)
     if total > high:  # (said as well: one kind's small noise must not hide a fit that misses
         # the rest; each kind's share named, so that the two do not read as one noise)
-        seen = {k: (c, m) for k, (c, m) in chi2.items() if m}
+        # (each kind over its share of the degrees of freedom, as the sentence above)
+        seen = {k: (c, max(m - n_params * m / n, 1.0)) for k, (c, m) in chi2.items() if m}
         each = "" if len(seen) < 2 else " (" + ", ".join(
-            f"the {k} ones {np.sqrt(c / m):.2g}" for k, (c, m) in seen.items()) + " times theirs)"
-        above = [k for k, (c, m) in seen.items() if c > m] or list(seen)
+            f"the {k} ones {np.sqrt(c / d):.2g}" for k, (c, d) in seen.items()) + " times theirs)"
+        above = [k for k, (c, d) in seen.items() if c > d] or list(seen)
         said.append(f"the residuals are {ratio:.2g} times the noise assumed{each}, where noise "
                     f"explains at most {np.sqrt(high / dof):.2g} times over {n} of them: the "
                     f"model does not fit the data (a parameter not fitted, a load not given, a "

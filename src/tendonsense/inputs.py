@@ -657,7 +657,7 @@ def warn_no_damping(robot, where: str = "", stacklevel: int = 2) -> None:
 def coarse_step(robot, max_step: float) -> str | None:
     """Why ``max_step`` is too long to follow the damped rod's relaxation (longer than
     :data:`STEP_PER_TAU` τ, τ = 3η/E), or None (or without damping)."""
-    tau = 3 * robot.rod.damping / robot.rod.young_modulus
+    tau = robot.rod.relaxation_time
     if tau > 0 and max_step > STEP_PER_TAU * tau:
         return (f"a step of {max_step:g} s is longer than {STEP_PER_TAU:g} of the rod's "
                 f"relaxation time (τ = 3η/E = {tau:.3g} s): the motion is resolved coarsely; "

@@ -257,7 +257,8 @@ def estimate_file(robot: Robot, log: str | Path, out: str | Path, unknowns: Sequ
                       skipped_rows=tuple(bad[:SKIPPED_SHOWN]),
                       note=joined("" if located(unknowns) else released_at_start(
                           samples, robot, noise.tension),
-                          "" if dynamic else lagging(samples, robot, measured, noise.length),
+                          "" if dynamic or located(unknowns) else lagging(
+                              samples, robot, measured, noise.length),
                           misfit_rows(disagreeing(results), len(results))))
 
 

@@ -617,14 +617,19 @@ LAG_NOTE = 2.0
 
 def _slopes(t: np.ndarray, v: np.ndarray, w: int, block: int = 4096) -> np.ndarray:
     """Least-squares slopes of ``v`` (N, k) against ``t`` (N,) over every ``w`` consecutive
-    rows (N − w + 1, k), each window centred on its own means (``block`` windows at a time)."""
+    rows (N − w + 1, k): windowed sums of cumulative sums, ``block`` windows at a time, each
+    block centred on its own means (so that the sums stay small)."""
     out = []
     for a in range(0, t.size - w + 1, block):
-        tw = np.lib.stride_tricks.sliding_window_view(t[a:a + block + w - 1], w)
-        vw = np.lib.stride_tricks.sliding_window_view(v[a:a + block + w - 1], w, axis=0)
-        tw = tw - tw.mean(axis=1, keepdims=True)
-        vw = vw - vw.mean(axis=2, keepdims=True)
-        out.append(np.einsum("bw,bkw->bk", tw, vw) / np.sum(tw * tw, axis=1)[:, None])
+        tb, vb = t[a:a + block + w - 1], v[a:a + block + w - 1]
+        tb, vb = (tb - tb.mean())[:, None], vb - vb.mean(axis=0)
+
+        def window(x):  # sums over each window
+            c = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
+            return c[w:] - c[:-w]
+
+        st, sv = window(tb), window(vb)
+        out.append((w * window(tb * vb) - st * sv) / (w * window(tb * tb) - st * st))
     return np.concatenate(out)
 
 
@@ -636,14 +641,15 @@ def lagging(samples: Sequence[Sample], robot: Robot, measured: Sequence[str],
     rest only). ẏ is each measured length change's rate, fitted over as many rows (at their
     median time step) as make the fit's noise times τ a third of ``length_noise``; noted
     where τ|ẏ| exceeds :data:`LAG_NOTE` length noises. Nothing without time stamps or
-    damping."""
-    tau = 3 * robot.rod.damping / robot.rod.young_modulus
+    damping, nor where the rows are more than τ apart (the rod settles between them: τ|ẏ|
+    is no longer its lag)."""
+    tau = robot.rod.relaxation_time
     good = [s for s in samples if not s.error and s.time is not None]
     if tau <= 0 or len(good) < 3 or not measured:
         return ""
     t = np.array([s.time for s in good])
     dt = np.median(np.diff(t))
-    if not dt > 0 or not np.all(np.diff(t) > 0):
+    if not 0 < dt <= tau or not np.all(np.diff(t) > 0):
         return ""
     # slope noise σ √(12 / (w (w² − 1))) / Δt, times τ, under σ/3
     w = 3
@@ -652,7 +658,7 @@ def lagging(samples: Sequence[Sample], robot: Robot, measured: Sequence[str],
     if w * (w * w - 1) < 108 * (tau / dt) ** 2:
         return ""
     y = np.array([[s.displacements[n] for n in measured] for s in good])
-    lag = tau * np.abs(_slopes(t, y, w)) / length_noise
+    lag = np.nan_to_num(tau * np.abs(_slopes(t, y, w)) / length_noise)
     over = np.flatnonzero(lag.max(axis=1) > LAG_NOTE)
     if not over.size:
         return ""

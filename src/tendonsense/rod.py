@@ -22,6 +22,12 @@ class Rod:
     disk_radius: float | None = None  # spacer disks wider than the rod; None: tendons inside
     damping: float = 0.0  # Kelvin–Voigt viscosity η, Pa·s
 
+    @property
+    def relaxation_time(self) -> float:
+        """τ = 3η/E, s: every mode of an incompressible Kelvin–Voigt rod relaxes with it
+        (0 without damping)."""
+        return 3.0 * self.damping / self.young_modulus
+
     def radius(self, X) -> np.ndarray:
         Xk, rk = np.array(self.radius_knots).T
         return np.interp(X, Xk, rk)
