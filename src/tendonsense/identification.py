@@ -378,7 +378,7 @@ def misfit_of(kinds: dict[str, tuple[np.ndarray, float]], n_params: int
         return None, ""
     total = sum(c for c, _ in chi2.values())
     ratio = float(np.sqrt(total / dof))
-    small, too_large = [], []  # every kind whose noise is too large, its name
+    small, overstated = [], []  # every kind whose noise assumed is too large, its name
     for k, (c, m) in chi2.items():
         dof_k = m - n_params * m / n
         low = distribution.ppf(1 - MISFIT_QUANTILE, dof_k) if dof_k >= 1 else 0.0
@@ -386,13 +386,13 @@ def misfit_of(kinds: dict[str, tuple[np.ndarray, float]], n_params: int
             small.append(f"the {k} residuals are {np.sqrt(c / dof_k):.2g} times the {k} noise "
                          f"assumed ({kinds[k][1]:g} m), where such noise gives at least "
                          f"{np.sqrt(low / dof_k):.2g} times over {m} of them")
-            too_large.append(k)
-    said = [f"{'; '.join(small)}: the {' and '.join(too_large)} noise is smaller than "
+            overstated.append(k)
+    said = [f"{'; '.join(small)}: the {' and '.join(overstated)} noise is smaller than "
             f"assumed, and the ± values, which assume it, are too wide"] if small else []
     high = distribution.ppf(MISFIT_QUANTILE, dof)
     if total > high:  # (said as well: one kind's small noise must not hide a fit that misses
-        # the rest; each kind's share named, so that the two do not read as one noise)
-        # (each kind over its share of the degrees of freedom, as the sentence above)
+        # the rest; each kind named over its share of the degrees of freedom, as above, so
+        # that the two do not read as one noise)
         seen = {k: (c, max(m - n_params * m / n, 1.0)) for k, (c, m) in chi2.items() if m}
         each = "" if len(seen) < 2 else " (" + ", ".join(
             f"the {k} ones {np.sqrt(c / d):.2g}" for k, (c, d) in seen.items()) + " times theirs)"
