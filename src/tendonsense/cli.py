@@ -62,14 +62,17 @@ class UsageError(Exception):
     pass
 
 
+def _shown(parser, action) -> str:
+    """The option of ``action`` as --help shows it (a hidden alias by its visible option)."""
+    return "/".join(next((a for a in parser._actions if a.dest == action.dest
+                          and a.help != argparse.SUPPRESS), action).option_strings)
+
+
 def _given_once(action, parser, namespace):
-    """A usage error where the option of ``action`` was given before (named by its visible
-    option, not a hidden alias)."""
+    """A usage error where the option of ``action`` was given before."""
     given = namespace.__dict__.setdefault("_given", set())
     if action.dest in given:
-        shown = next((a for a in parser._actions if a.dest == action.dest
-                      and a.help != argparse.SUPPRESS), action)
-        parser.error(f"{'/'.join(shown.option_strings)} given twice")
+        parser.error(f"{_shown(parser, action)} given twice")
     given.add(action.dest)
 
 
@@ -140,14 +143,8 @@ class _Parser(argparse.ArgumentParser):
         if extras is None and not bad:
             return
         import difflib
-
-        def named(option):  # as --help shows it (a hidden alias by its visible option)
-            dest = options[option].dest
-            return "/".join(next((a for a in parser._actions if a.dest == dest
-                                  and a.help != argparse.SUPPRESS), options[option]).option_strings)
-
         prog = " ".join(filter(None, (self.prog, command)))
-        slips = [f"{b}: did you mean {named(m[0])}? " for b in bad
+        slips = [f"{b}: did you mean {_shown(parser, options[m[0]])}? " for b in bad
                  if (m := difflib.get_close_matches(b, list(options), n=1))]
         raise UsageError(f"{prog}: unrecognized arguments: {' '.join(extras or bad)} "
                          f"({''.join(slips)}see {prog} --help)")

@@ -379,8 +379,9 @@ def misfit_of(kinds: dict[str, tuple[np.ndarray, float]], n_params: int
     total = sum(c for c, _ in chi2.values())
     ratio = float(np.sqrt(total / dof))
     small, overstated = [], []  # every kind whose noise assumed is too large, its name
+    share = {k: m - n_params * m / n for k, (_, m) in chi2.items()}  # its degrees of freedom
     for k, (c, m) in chi2.items():
-        dof_k = m - n_params * m / n
+        dof_k = share[k]
         low = distribution.ppf(1 - MISFIT_QUANTILE, dof_k) if dof_k >= 1 else 0.0
         if c < low:
             small.append(f"the {k} residuals are {np.sqrt(c / dof_k):.2g} times the {k} noise "
@@ -393,7 +394,7 @@ def misfit_of(kinds: dict[str, tuple[np.ndarray, float]], n_params: int
     if total > high:  # (said as well: one kind's small noise must not hide a fit that misses
         # the rest; each kind named over its share of the degrees of freedom, as above, so
         # that the two do not read as one noise)
-        seen = {k: (c, max(m - n_params * m / n, 1.0)) for k, (c, m) in chi2.items() if m}
+        seen = {k: (c, max(share[k], 1.0)) for k, (c, m) in chi2.items() if m}
         each = "" if len(seen) < 2 else " (" + ", ".join(
             f"the {k} ones {np.sqrt(c / d):.2g}" for k, (c, d) in seen.items()) + " times theirs)"
         above = [k for k, (c, d) in seen.items() if c > d] or list(seen)

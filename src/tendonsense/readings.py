@@ -619,15 +619,14 @@ def _slopes(t: np.ndarray, v: np.ndarray, w: int, block: int = 4096) -> np.ndarr
     """Least-squares slopes of ``v`` (N, k) against ``t`` (N,) over every ``w`` consecutive
     rows (N − w + 1, k): windowed sums of cumulative sums, ``block`` windows at a time, each
     block centred on its own means (so that the sums stay small)."""
+    def window(x):  # sums over each window
+        c = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
+        return c[w:] - c[:-w]
+
     out = []
     for a in range(0, t.size - w + 1, block):
         tb, vb = t[a:a + block + w - 1], v[a:a + block + w - 1]
         tb, vb = (tb - tb.mean())[:, None], vb - vb.mean(axis=0)
-
-        def window(x):  # sums over each window
-            c = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
-            return c[w:] - c[:-w]
-
         st, sv = window(tb), window(vb)
         out.append((w * window(tb * vb) - st * sv) / (w * window(tb * tb) - st * st))
     return np.concatenate(out)
