@@ -132,7 +132,7 @@ def test_a_static_estimate_of_a_moving_log_is_noted(slow_rod):
     (rows of the pull, the release and the creep after it); not a log whose lengths stand still under the
     same noise (at 100 Hz or 1 kHz, where more rows make the rate), nor a robot without
     damping or a log without time stamps."""
-    from tendonsense.readings import Sample, lagging
+    from tendonsense.readings import LagWatch, Sample, lag_window, lagging
     robot, sim = slow_rod
     cols = sim.readings(1e-4, 0.01, seed=0)
     t, y = cols["time"], cols["displacement_t1"]
@@ -167,6 +167,22 @@ def test_a_static_estimate_of_a_moving_log_is_noted(slow_rod):
     undamped = robot.replace(rod=dataclasses.replace(robot.rod, damping=0.0))
     assert lagging(samples(t, y), undamped, ["t1"], 1e-4) == ""
     assert lagging(samples([None] * len(t), y), robot, ["t1"], 1e-4) == ""
+
+    # a stream says it once, at the last row of the file's first window over the rule
+    def watched(rows, robot=robot):
+        watch = LagWatch(robot, ["t1"], 1e-4)
+        return [(s.row, n) for s in rows if (n := watch(s))]
+
+    (row, said), = watched(samples(t, y))
+    w = lag_window(0.3, 0.01)
+    assert row == first + w - 1 - w // 2 and f"at row {row}: " in said, (row, first, said)
+    assert said.startswith("the robot moves: with its damping (τ = 3η/E = 0.3 s) the shape "
+                           "lags the readings, t1's length by "), said
+    for seed in range(5):
+        still = y[0] + rng.normal(0, 1e-4, 500)
+        assert watched(samples(np.arange(500) * 0.01, still)) == [], seed
+    assert watched(samples(t, y), undamped) == watched(samples([None] * len(t), y)) == []
+    assert watched(samples(t * 1000, y)) == []  # stamps in ms: rows more than τ apart
 
 
 def test_force_step_followed():
@@ -349,6 +365,15 @@ def test_cli_dynamic(tmp_path, slow_rod):
     assert note and f"tendonsense: {log}: note: {note}" in r.stderr.splitlines(), r.stderr
     assert note in estimate_file(robot, log, tmp_path / "s2.csv", [PointForceUnknown(
         X, (0, 0, -1))]).note
+    # a stream of it says the lag once, as it reaches the row
+    r = subprocess.run([sys.executable, "-m", "tendonsense.cli", "estimate", str(toml),
+                        "--readings", "-", "--unknown", f"{X},0,0,-1"], capture_output=True,
+                       text=True, input=log.read_text())
+    said = [line for line in r.stderr.splitlines() if "lags the readings" in line]
+    assert r.returncode == 0 and len(said) == 1, r.stderr
+    row = int(said[0].split("at row ")[1].split(":")[0])
+    assert said[0].startswith("tendonsense: <stdin>: note: the robot moves") and (
+        r.stdout.index(f"\n{row},") > 0), said
     rows = list(csv.DictReader(open(out)))
     assert list(rows[0]) == list(next(csv.DictReader(open(static))))
     est, _ = _filtered(robot, cols)

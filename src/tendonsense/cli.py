@@ -1540,7 +1540,8 @@ def _stream(args, robot, noise) -> bool:
     try:
         with fh:
             stream_readings(robot, lines, out, args.unknown, forces, noise, source, skipped,
-                            answered, args.dynamic, _walk(args))
+                            answered, args.dynamic, _walk(args), lambda note: print(
+                                f"tendonsense: {source}: note: {note}", file=sys.stderr))
         if not count["rows"]:
             raise ReadingsError(f"{source}: no data rows below the header")
         done = True

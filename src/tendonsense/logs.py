@@ -21,11 +21,11 @@ from .estimation import Noise, Unknown, problem
 from .inputs import WALK, check_unknowns
 from .online import OnlineEstimator
 from .problem import MISFIT, MISFIT_QUANTILE
-from .readings import (SKIPPED_SHOWN, LogSummary, ReadingsError, Sample, check_units,
-                       has_time, lagging, located, motion_step_error, output_header,
-                       output_row, output_rows, parse_header, parse_row, read_readings,
-                       released_at_start, stuck_rows_error, time_back, with_sliding,
-                       write_csv_atomic)
+from .readings import (SKIPPED_SHOWN, LagWatch, LogSummary, ReadingsError, Sample,
+                       check_units, has_time, lagging, located, motion_step_error,
+                       output_header, output_row, output_rows, parse_header, parse_row,
+                       read_readings, released_at_start, stuck_rows_error, time_back,
+                       with_sliding, write_csv_atomic)
 from .result import joined
 from .robot import Robot
 from .sliding import GIVEN, FrictionHistory, band_note, band_range
@@ -275,8 +275,8 @@ def online_estimator(robot: Robot, measured: Sequence[str], unknowns: Sequence[U
 
 def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point_forces=(),
                     noise: Noise = Noise(), source="<stdin>", on_skip=None,
-                    on_sample=None, dynamic: bool = False, walk: float = WALK
-                    ) -> tuple[int, int]:
+                    on_sample=None, dynamic: bool = False, walk: float = WALK,
+                    on_note=None) -> tuple[int, int]:
     """Live estimation: read READINGS.csv lines from ``lines`` (an iterable of text lines) and
     write each output row to ``out`` as soon as it is estimated, flushed; then call
     ``on_sample(sample, estimate or None)`` (e.g. a :class:`~tendonsense.view.Viewer`'s push).
@@ -285,7 +285,9 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
     The estimator's programs are built after the header, before the first row is read.
     Returns (rows, converged). Ends at the end of the input; the caller handles an interrupt
     (every row written so far is complete). ``dynamic``: with the damped model over the rows'
-    time stamps (the log needs a ``time`` column)."""
+    time stamps (the log needs a ``time`` column). ``on_note(note)``: a stream estimated at
+    rest that moves a damped robot faster than its shape follows is said once
+    (:class:`~tendonsense.readings.LagWatch`)."""
     reader = csv.reader(lines)
     try:
         header = next(reader)
@@ -303,6 +305,8 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
     online = online_estimator(robot, columns.measured, unknowns, point_forces, noise,
                               dynamic=dynamic, walk=walk)
     rows = good = 0
+    watch = LagWatch(robot, columns.measured, noise.length) if on_note and not (
+        dynamic or located(unknowns)) else None
     last = None  # the last good row's time
     first: list[list[str]] = []
     timed: list[Sample] = []  # in motion: the first rows' good samples, for their stamps
@@ -324,6 +328,8 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
                             f"{source} (its first {len(timed)} rows)", timed,
                             " (a static stream is estimated without --dynamic)")):
                         raise ReadingsError(error)
+        if watch is not None and (note := watch(s)):
+            on_note(note)
         r = None if s.error else online.update(s.displacements, s.tensions, s.time, s.sliding)
         if r is None and on_skip:
             on_skip(s)

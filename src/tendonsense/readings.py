@@ -632,16 +632,34 @@ def _slopes(t: np.ndarray, v: np.ndarray, w: int, block: int = 4096) -> np.ndarr
     return np.concatenate(out)
 
 
+def lag_window(tau: float, dt: float) -> int:
+    """The rows over which :func:`lagging` fits a length's rate, at a step of ``dt``: the
+    fewest (at least 3) whose fitted slope's noise, σ √(12 / (w (w² − 1))) / Δt, times ``tau``
+    is at most a third of the length noise σ."""
+    w = 3
+    while w * (w * w - 1) < 108 * (tau / dt) ** 2:
+        w += 1
+    return w
+
+
+def _lag_note(tau: float, name: str, lag: float, length_noise: float, row: int,
+              by: str, where: str) -> str:
+    """The words of :func:`lagging`'s and :class:`LagWatch`'s note."""
+    return (f"the robot moves: with its damping (τ = 3η/E = {tau:.3g} s) the shape lags the "
+            f"readings, {name}'s length by {by}{lag * 1e3:.3g} mm (τ × its rate, at row {row}: "
+            f"{lag / length_noise:.3g} times the length noise{where}): an estimate at rest "
+            f"reads that lag as a force there (estimate in motion: --dynamic)")
+
+
 def lagging(samples: Sequence[Sample], robot: Robot, measured: Sequence[str],
             length_noise: float) -> str:
     """A note where a log, estimated at rest, moves a damped robot faster than its shape
     follows: the shape lags the readings by about τ = 3η/E, so that a measured length is
     short of its equilibrium by τ|ẏ| and the estimate reads that as a force (eq. 7 holds at
-    rest only). ẏ is each measured length change's rate, fitted over as many rows (at their
-    median time step) as make the fit's noise times τ a third of ``length_noise``; noted
-    where τ|ẏ| exceeds :data:`LAG_NOTE` length noises. Nothing without time stamps or
-    damping, nor where the rows are more than τ apart (the rod settles between them: τ|ẏ|
-    is no longer its lag)."""
+    rest only). ẏ is each measured length change's rate, fitted over :func:`lag_window` rows
+    (at their median time step); noted where τ|ẏ| exceeds :data:`LAG_NOTE` length noises.
+    Nothing without time stamps or damping, nor where the rows are more than τ apart (the
+    rod settles between them: τ|ẏ| is no longer its lag). A stream: :class:`LagWatch`."""
     tau = robot.rod.relaxation_time
     good = [s for s in samples if not s.error and s.time is not None]
     if tau <= 0 or len(good) < 3 or not measured:
@@ -650,11 +668,8 @@ def lagging(samples: Sequence[Sample], robot: Robot, measured: Sequence[str],
     dt = np.median(np.diff(t))
     if not 0 < dt <= tau or not np.all(np.diff(t) > 0):
         return ""
-    # slope noise σ √(12 / (w (w² − 1))) / Δt, times τ, under σ/3
-    w = 3
-    while w * (w * w - 1) < 108 * (tau / dt) ** 2 and w < len(good):
-        w += 1
-    if w * (w * w - 1) < 108 * (tau / dt) ** 2:
+    w = lag_window(tau, dt)
+    if w > len(good):
         return ""
     y = np.array([[s.displacements[n] for n in measured] for s in good])
     lag = np.nan_to_num(tau * np.abs(_slopes(t, y, w)) / length_noise)
@@ -663,12 +678,54 @@ def lagging(samples: Sequence[Sample], robot: Robot, measured: Sequence[str],
         return ""
     k, j = np.unravel_index(np.argmax(lag), lag.shape)
     rows = [good[i + w // 2].row for i in (over[0], over[-1], k)]
-    return (f"the robot moves: with its damping (τ = 3η/E = {tau:.3g} s) the shape lags the "
-            f"readings, {measured[j]}'s length by up to {lag[k, j] * length_noise * 1e3:.3g} mm "
-            f"(τ × its rate, at row {rows[2]}: {lag[k, j]:.3g} times the length noise; more "
-            f"than {LAG_NOTE:g} times on {over.size} rows between rows {rows[0]} and "
-            f"{rows[1]}): an estimate at rest reads that lag as a force there (estimate in "
-            f"motion: --dynamic)")
+    return _lag_note(tau, measured[j], lag[k, j] * length_noise, length_noise, rows[2],
+                     "up to ", f"; more than {LAG_NOTE:g} times on {over.size} rows between "
+                     f"rows {rows[0]} and {rows[1]}")
+
+
+#: a stream's first time-stamped rows whose median step sets :class:`LagWatch`'s window
+LAG_ROWS = 10
+
+
+class LagWatch:
+    """:func:`lagging` for a stream, row by row: each measured length's rate fitted over the
+    last :func:`lag_window` rows (at the median step of the first :data:`LAG_ROWS` rows), and
+    the note given once, at the first row where τ|ẏ| exceeds :data:`LAG_NOTE` length noises
+    (the last row of the file's first such window). Call it with each sample; it returns the
+    note, or ''."""
+
+    def __init__(self, robot: Robot, measured: Sequence[str], length_noise: float):
+        self.tau, self.measured = robot.rod.relaxation_time, list(measured)
+        self.noise = length_noise
+        self.rows: list[tuple[float, list[float], int]] = []
+        self.window = 0  # rows of the fit, once the first rows have set it
+        self.done = self.tau <= 0 or not self.measured
+
+    def __call__(self, sample: Sample) -> str:
+        if self.done or sample.error or sample.time is None:
+            return ""
+        self.rows.append((sample.time, [sample.displacements[n] for n in self.measured],
+                          sample.row))
+        if not self.window:
+            if len(self.rows) < LAG_ROWS:
+                return ""
+            dt = float(np.median(np.diff([r[0] for r in self.rows])))
+            if not 0 < dt <= self.tau:
+                self.done = True  # the rod settles between rows (or stamps are not seconds)
+                return ""
+            self.window = lag_window(self.tau, dt)
+        del self.rows[:-self.window]
+        if len(self.rows) < self.window:
+            return ""
+        t = np.array([r[0] for r in self.rows])
+        y = np.array([r[1] for r in self.rows])
+        lag = np.nan_to_num(self.tau * np.abs(_slopes(t, y, self.window)[0]))
+        j = int(np.argmax(lag))
+        if lag[j] <= LAG_NOTE * self.noise:
+            return ""
+        self.done = True
+        return _lag_note(self.tau, self.measured[j], lag[j], self.noise, sample.row, "",
+                         "; said once")
 
 
 def shape_rmse(result, measured: dict[str, np.ndarray]) -> float:
