@@ -578,12 +578,35 @@ def test_a_solve_that_did_not_converge_is_not_dressed_as_one(tmp_path):
     assert "NOT CONVERGED: " in head and len(head.split("NOT CONVERGED: ")[1]) > 20
     assert "residual" in head or "strain" in head
     assert not any("markers" in line or "tip (X" in line for line in rest)
+    assert "Warning" not in p.stderr, p.stderr  # the command line says it its own way
     assert list(tmp_path.iterdir()) == []  # nothing written without --plot
     p = cli("solve", robot, "--tension", "t1=2", "--point-force=0.25,0,0,-38", "--json",
             "--plot", tmp_path / "s.png")
     out = json.loads(p.stdout)
     assert out["converged"] is False and out["note"] and p.returncode == 3
     assert (tmp_path / "s.png").stat().st_size > 10_000  # asked for: drawn, stamped
+
+
+def test_a_python_result_that_is_no_solution_says_so(prototype, tmp_path):
+    """From Python, a solve or an estimate without a solution warns (its result is the last
+    iterate: a script printing its magnitudes read -1.48 N ± 1.17 N without a word); a
+    solution does not; a stuck tendon's estimate gives its range as SampleEstimate does."""
+    from tendonsense.result import NotConvergedWarning
+    with pytest.warns(NotConvergedWarning, match=r"^estimate did not converge: the solver "
+                      r"stopped after \d+ iterations .*no solution \(result.converged is "
+                      r"False\)$"):
+        est = estimate(prototype, {"t1": -0.05}, {"t1": 2.1}, [TIP])
+    assert not est.converged and est.note == est.extra["note"] and est.note
+    with pytest.warns(NotConvergedWarning, match="^solve did not converge: "):
+        assert not solve(load_robot(short_of_iterations(tmp_path)), {"t1": 2.0},
+                         [(0.25, (0, 0, -38.0))]).converged
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert solve(prototype, {"t1": 2.0}).note == ""
+        stuck = estimate(prototype, {"t1": -0.005}, {"t1": 2.1}, [TIP], sliding={"t1": "stuck"})
+    assert stuck.magnitude_range.shape == (1, 2) and (
+        stuck.magnitude_range[0, 0] < stuck.magnitudes[0] < stuck.magnitude_range[0, 1])
+    assert solve(prototype, {"t1": 2.0}).magnitude_range.shape == (0, 2)
 
 
 def test_a_least_squares_fit_short_of_its_minimum_says_so(prototype, monkeypatch):
@@ -596,7 +619,8 @@ def test_a_least_squares_fit_short_of_its_minimum_says_so(prototype, monkeypatch
     unknown = [PointForceUnknown(0.25, (0, 0, -1))]
     assert estimate(prototype, y, T, unknown).converged
     monkeypatch.setattr(estimation, "LM_STEPS", 1)
-    est = estimate(prototype, y, T, unknown)
+    with pytest.warns(UserWarning, match="did not converge"):
+        est = estimate(prototype, y, T, unknown)
     assert not est.converged
     assert est.extra["note"].startswith("the least-squares fit took its 1 steps without "
                                         "reaching a minimum (relative offset ")

@@ -26,7 +26,7 @@ from .model import Values
 from .problem import (Problem, _jacobians_fn, confounded, noise_covariance,  # noqa: F401
                       jacobians, misfit_note, preload_jacobians, problem, reduced_jacobians,
                       unseen, unstable_at)
-from .result import Result, joined
+from .result import Result, joined, warns_if_not_converged
 from .robot import Robot, check_robot
 from .sliding import band_note, band_range
 from .statics import (Drive, NewtonResult, Unknowns, preload_outputs, shape_outputs,
@@ -125,6 +125,7 @@ def _least_squares(prob: Problem, drive: Drive, values: Values, x0, tol: float, 
     return (x, converged and bool(res.converged), total, res, float(np.linalg.norm(e)), why)
 
 
+@warns_if_not_converged
 def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping[str, float],
              unknowns: Sequence[Unknown], point_forces=(), noise: Noise = Noise(),
              x0=None, sliding: Mapping[str, str] | None = None) -> Result:
@@ -134,12 +135,16 @@ def estimate(robot: Robot, displacements: Mapping[str, float], tensions: Mapping
     ``sliding`` ({tendon: 'in' | 'out' | 'stuck'}, default in) is the direction each tendon
     slides, which sets the sense of its friction. A stuck tendon's tension profile
     is anywhere between the two: the result is the estimate at the middle of that band
-    (no friction in it) with ``extra['magnitude_range']`` ``[[low, high], …]``, the estimates at
-    its ends (±inf on the side of an end without an equilibrium, said in ``extra['note']``).
+    (no friction in it) with :attr:`~tendonsense.result.Result.magnitude_range`
+    ``[[low, high], …]``, the estimates at its ends (±inf on the side of an end without an
+    equilibrium, said in its ``note``): the magnitudes' 1-σ band is the noise's at the
+    middle, the range is what the friction leaves open.
 
     ``x0`` (a previous result's ``extra['x']``) warm-starts the solve. The result carries
     ``magnitudes`` (N for point forces, a scale for gravity), their 1-σ band ``sigma`` for
-    the sensor ``noise`` and ``sensitivity``: ∂magnitudes/∂measurement per measurement.
+    the sensor ``noise`` and ``sensitivity``: ∂magnitudes/∂measurement per measurement. A
+    result that did not converge is the solver's last iterate, no estimate: said by a
+    :class:`~tendonsense.result.NotConvergedWarning`.
     """
     inputs.tendon_vector(check_robot(robot), displacements, "displacement")  # the robot's names
     prob = problem(robot, list(displacements), unknowns, point_forces)

@@ -17,7 +17,7 @@ from .inputs import PointForce, check_point_forces, finite, tendon_vector  # noq
 from .compiled import Program
 from .kinematics import poses
 from .model import Model, material_values
-from .result import Result, joined
+from .result import Result, joined, warns_if_not_converged
 from .robot import Robot, check_robot
 from .rod import Overlap, overlap
 from .stability import SETTLED_NOTE, is_unstable, stiffness_ratio, tangent, unstable_note
@@ -141,6 +141,7 @@ def sliding_values(robot: Robot, values, directions: Mapping[str, str] | None):
     return values._replace(friction=values.friction * inputs.friction_signs(robot, directions))
 
 
+@warns_if_not_converged
 def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
           point_forces: Sequence[PointForce] = (), q0=None,
           sliding: Mapping[str, str] | None = None, settle: bool = False) -> Result:
@@ -152,7 +153,9 @@ def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
     Solved from the straight rod (or ``q0``), the shape keeps the plane of its loads; where it
     is an unstable equilibrium its note says so. With ``settle``, where it is unstable or no
     equilibrium was found, the result is instead the stable state the rod comes to rest in
-    from it (:func:`~tendonsense.stability.settle`), its note says so."""
+    from it (:func:`~tendonsense.stability.settle`), its note says so. A result that did not
+    converge (the solver's last iterate) is said by a
+    :class:`~tendonsense.result.NotConvergedWarning`."""
     model = model_for(robot)
     drive = _statics_drive(robot, tensions, point_forces)
     values = sliding_values(robot, model.values, sliding)
@@ -203,6 +206,7 @@ def settled(model: Model, values, drive: Drive, unknowns: Unknowns, x, iteration
         f"in a plane)")})
 
 
+@warns_if_not_converged
 def forward_kinematics(robot: Robot, displacements: Mapping[str, float],
                        tensions: Mapping[str, float] | None = None,
                        point_forces: Sequence[PointForce] = (), q0=None,
@@ -211,7 +215,7 @@ def forward_kinematics(robot: Robot, displacements: Mapping[str, float],
     changes ``displacements`` (m) are prescribed; other tendons keep ``tensions`` (default 0);
     ``sliding`` as for :func:`solve`. A length change that only a pushing tendon could make
     (longer than the tendon is when slack) is no solution: not converged, the note says
-    which."""
+    which (and a :class:`~tendonsense.result.NotConvergedWarning`, as for :func:`solve`)."""
     check_robot(robot)
     if not displacements:
         raise ValueError("forward kinematics needs at least one tendon displacement")

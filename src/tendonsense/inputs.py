@@ -267,6 +267,36 @@ def readings(robot: Robot, displacements_: Mapping[str, float],
     return tensions(robot, tensions_, young_modulus), y
 
 
+def per_sample(readings, what: str) -> list[Mapping[str, float]]:
+    """A series' or a batch's ``readings`` of one kind (``what``: displacement or tension),
+    one mapping a sample: a sequence of ``{tendon: value}`` as it is, or ``{tendon: (N,)
+    values}`` cut into one a sample; a ValueError naming both forms otherwise (e.g. a bare
+    array, whose columns would have no tendon)."""
+    forms = (f"{what}s: one {{tendon: value}} a sample (a list of them) or {{tendon: (N,) "
+             f"values}}")
+    if hasattr(readings, "items"):
+        cols = {}
+        for name, v in readings.items():
+            a = np.asarray(v, object if isinstance(v, (str, bytes)) else None)
+            if a.ndim != 1:
+                raise ValueError(f"{forms}; {what} {name}: " + (
+                    "one value (a single reading is estimate()'s)" if a.ndim == 0 else
+                    f"an array of shape {a.shape}"))
+            cols[name] = a.tolist()
+        if len({len(c) for c in cols.values()}) > 1:
+            raise ValueError(f"{forms}; the tendons' values differ in number ("
+                             + ", ".join(f"{k}: {len(c)}" for k, c in cols.items()) + ")")
+        return [dict(zip(cols, row)) for row in zip(*cols.values())]
+    if isinstance(readings, (str, bytes)) or not hasattr(readings, "__len__"):
+        raise ValueError(f"{forms}, not a {type(readings).__name__}")
+    items = list(readings)
+    if odd := [r for r in items if not hasattr(r, "items")]:
+        raise ValueError(f"{forms}, not " + (
+            f"an array of shape {np.shape(readings)}" if isinstance(readings, np.ndarray)
+            else f"a {type(readings).__name__} of {type(odd[0]).__name__}"))
+    return items
+
+
 def many_readings(robot: Robot, displacements: Sequence[Mapping[str, float]],
                   tensions: Sequence[Mapping[str, float]], rest: np.ndarray | None = None,
                   young_modulus: float | Sequence[float | None] | None = None,

@@ -4,6 +4,10 @@ the lighter one of a sample in a series."""
 from __future__ import annotations
 
 import dataclasses
+import functools
+import os
+import sys
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,6 +43,29 @@ def compact_repr(self) -> str:
         + ")")
 
 
+class NotConvergedWarning(UserWarning):
+    """A solve or an estimate of the Python API (:func:`~tendonsense.forward.solve`,
+    :func:`~tendonsense.forward.forward_kinematics`, :func:`~tendonsense.estimation.estimate`)
+    that found no solution: its :class:`Result` holds the solver's last iterate
+    (``converged`` False, :attr:`Result.note` says why), no shape the robot holds."""
+
+
+def warns_if_not_converged(fn):
+    """``fn`` (returning a :class:`Result`) warning :class:`NotConvergedWarning` where the
+    result did not converge and the caller is outside this package (whose own callers say it
+    their way: the command line's NOT CONVERGED, a table's column)."""
+    @functools.wraps(fn)
+    def said(*args, **kwargs):
+        result = fn(*args, **kwargs)
+        caller = os.path.dirname(sys._getframe(1).f_code.co_filename)
+        if not result.converged and caller != os.path.dirname(__file__):
+            warnings.warn(f"{fn.__name__} did not converge: {result.note or 'no reason given'}"
+                          f"; its result is the solver's last iterate, no solution "
+                          f"(result.converged is False)", NotConvergedWarning, stacklevel=2)
+        return result
+    return said
+
+
 @dataclass(frozen=True, eq=False)
 class Result:
     """Solution of a forward-statics, forward-kinematics or estimation problem.
@@ -60,6 +87,19 @@ class Result:
     extra: dict = field(default_factory=dict)
 
     __repr__ = compact_repr
+
+    @property
+    def note(self) -> str:
+        """Why the result is no solution, or a remark on it ('' if none)."""
+        return self.extra.get("note") or ""
+
+    @property
+    def magnitude_range(self) -> np.ndarray:
+        """An estimate with a stuck tendon: (n, 2) ``[low, high]`` of each magnitude over its
+        friction band (±inf where open), ``magnitudes`` being at the band's middle; (0, 2)
+        otherwise (as :attr:`SampleEstimate.magnitude_range`)."""
+        band = self.extra.get("magnitude_range")
+        return np.zeros((0, 2)) if band is None else np.asarray(band, float).reshape(-1, 2)
 
     def to_json(self) -> dict:
         """The documented JSON keys (plus uncertainty for estimates) as plain JSON types."""

@@ -167,6 +167,10 @@ class Robot:
         """A copy with other material parameters; ``friction`` is one μ for every tendon or a
         ``{tendon: μ}`` mapping for some of them. Each is checked as in a robot file
         (:func:`value_error`)."""
+        if isinstance(friction, dict) and (odd := [k for k in friction
+                                                   if k not in self.tendon_names]):
+            raise ValueError(f"friction {odd[0]}: no such tendon (robot has "
+                             f"{', '.join(self.tendon_names)})")
         mus = friction.values() if isinstance(friction, dict) else [friction]
         for k, v in (("young_modulus", young_modulus), ("density", density),
                      ("damping", damping), *(("friction", m) for m in mus)):

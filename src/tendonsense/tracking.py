@@ -16,13 +16,13 @@ from .fastpath import (MAX_EVALUATIONS, MAX_JACOBIANS, Carry, Track,  # noqa: F4
                        follower, stacked_drives, tracker)
 from .forward import model_for, settled, sliding_values, why_not
 from .inputs import (Noise, check_noise, first_force_error, force_pairs, friction_signs,
-                     max_tension, outside_rod, tendon_vector, tension_error)
+                     max_tension, outside_rod, per_sample, tendon_vector, tension_error)
 from .model import VALUE_NAMES
 from .online import RESCUE_BUDGET, OnlineEstimator
 from .problem import Problem, band, confounded, covariance, misfit_notes  # noqa: F401 (API)
 from .result import SampleEstimate, compact_repr, joined
 from .robot import Robot, value_error
-from .sliding import Band, FrictionHistory, labels, turning_program
+from .sliding import NOISE_REACH, Band, FrictionHistory, labels, turning_program
 from .stability import (is_unstable, preload_stiffness_ratios, stiffness_ratio,
                         stiffness_ratios, tangent, unstable_note)
 from .statics import Drive, Unknowns, shape_outputs, solve_system
@@ -48,14 +48,59 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
     square problem's 1-σ band is exact on the first sample of every
     :data:`~tendonsense.fastpath.EXACT_EVERY` and within a few per cent between (the
     quasi-Newton inverse). ``progress(done, total)`` is called per
-    chunk (:func:`series_chunks` hands over each chunk's estimates as it finishes)."""
+    chunk (:func:`series_chunks` hands over each chunk's estimates as it finishes).
+
+    ``displacements`` and ``tensions``: one ``{tendon: value}`` a sample, or ``{tendon: (N,)
+    values}``. A converged sample where a tendon with friction has fallen below its highest
+    tension so far by more than the noise can (:data:`~tendonsense.sliding.NOISE_REACH`
+    tension noises) is noted: if it is released there, this series' law misreads it."""
+    displacements = per_sample(displacements, "displacement")
+    tensions = per_sample(tensions, "tension")
     n = len(displacements)
     out: list[SampleEstimate | None] = [None] * n
     for first, estimates in series_chunks(prob, displacements, tensions, noise, chunk, values):
         out[first:first + len(estimates)] = estimates
         if progress:
             progress(first + len(estimates), n)
-    return out
+    falls = fallen(prob, tensions, noise, values)
+    return [replace(e, note=joined(e.note, falls[k])) if e.converged and falls[k] else e
+            for k, e in enumerate(out)]
+
+
+def fallen(prob: Problem, tensions: Sequence[Mapping[str, float]], noise: Noise,
+           values: Mapping[str, object] | None = None) -> list[str]:
+    """Per sample of a series taken pulled in, a note where a tendon with friction reads
+    below its highest tension so far by more than :data:`~tendonsense.sliding.NOISE_REACH`
+    tension noises (a release, or the load pulling it out: its friction then runs the other
+    way), else ''."""
+    robot, n = prob.robot, len(tensions)
+    mu = varied_values(prob.model.values, values, n).get("friction", np.broadcast_to(
+        np.asarray(prob.model.values.friction, float), (n, len(robot.tendons))))
+    T = np.array([[_number(t.get(name, 0.0)) for name in robot.tendon_names]
+                  for t in tensions], float).reshape(len(tensions), -1)
+    top = np.fmax.accumulate(np.where(T > 0, T, np.nan), axis=0)
+    with np.errstate(invalid="ignore"):
+        low = (mu > 0) & (T < top * np.exp(-NOISE_REACH * noise.tension))
+    notes = []
+    for k in range(len(tensions)):
+        j = np.flatnonzero(low[k])
+        if not j.size:
+            notes.append("")
+            continue
+        name, j = robot.tendon_names[j[0]], j[0]
+        at = int(np.flatnonzero(T[:k + 1, j] == top[k, j])[0])
+        notes.append(f"{name}'s tension has fallen from {T[at, j]:.4g} N (sample {at + 1}) "
+                     f"to {T[k, j]:.4g} N: this series takes every tendon pulled in (eq. 10 "
+                     f"as written); if {name} is released here its friction runs the other "
+                     f"way (tendonsense.logs.estimate_readings follows each tendon's history)")
+    return notes
+
+
+def _number(v) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return np.nan
 
 
 def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
@@ -230,8 +275,10 @@ def estimate_batch(prob: Problem, displacements: Sequence[Mapping[str, float]],
                    tensions: Sequence[Mapping[str, float]], noise: Noise = Noise(),
                    workers: int = 2, progress=None,
                    values: Mapping[str, object] | None = None) -> list[SampleEstimate]:
-    """Estimate independent readings, returned in the input order; ``values`` gives each
-    its own E, ν, ρ or μ ({name: (N,)}, as for :func:`solve_batch`).
+    """Estimate independent readings, returned in the input order (as
+    :func:`estimate_series`'s: one ``{tendon: value}`` a sample, or ``{tendon: (N,)
+    values}``), each with every tendon pulled in unless ``values`` says otherwise; ``values``
+    gives each its own E, ν, ρ or μ ({name: (N,)}, as for :func:`solve_batch`).
 
     The readings are ordered along their first principal direction so that neighbours
     warm-start each other, cut into ``workers`` runs, and the runs are solved concurrently
@@ -240,6 +287,8 @@ def estimate_batch(prob: Problem, displacements: Sequence[Mapping[str, float]],
     check_noise(noise, prob.robot)
     from concurrent.futures import ThreadPoolExecutor
     robot = prob.robot
+    displacements = per_sample(displacements, "displacement")
+    tensions = per_sample(tensions, "tension")
     n = len(displacements)
     varied = varied_values(prob.model.values, values, n)
     m = np.array([np.concatenate([tendon_vector(robot, y, "displacement"),
@@ -292,7 +341,9 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
     """Forward statics over a batch of tensions, point loads and values, for sweeps and Monte
     Carlo: one compiled program per robot structure, whatever the numbers.
 
-    ``tensions``: (N, n_t) array (tendons in file order) or {tendon: (N,) array}.
+    ``tensions``: (N, n_t) array (tendons in file order), {tendon: (N,) array}, or one
+    {tendon: value} a sample (as :func:`estimate_batch` takes readings); tendons not named
+    are slack.
     ``point_forces``: [(X, f), ...] where X may be (N,) and f (N, 3). ``values``: {name: (N,)}
     for ``young_modulus``, ``poisson_ratio``, ``density``, ``friction`` ((N,) one μ for every
     tendon, or (N, n_t)), each under the robot file's rules (``ValueError`` naming the value
@@ -414,18 +465,30 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
 def batch_inputs(robot: Robot, base, tensions, point_forces, values):
     """Validated batch arrays: T (N, n_t), X (N, n_p), F (N, n_p, 3) and the varied values."""
     names = robot.tendon_names
+    if not isinstance(tensions, Mapping) and not isinstance(tensions, np.ndarray) and len(
+            tensions) and all(isinstance(t, Mapping) for t in tensions):  # one a sample
+        for t in tensions:
+            tendon_vector(robot, t, "tension")  # (the names)
+        tensions = {k: [t.get(k, 0.0) for t in tensions] for k in names}
     if isinstance(tensions, Mapping):
         cols = {k: np.atleast_1d(np.asarray(v, float)) for k, v in tensions.items()}
-        for k in cols:
+        for k, c in cols.items():
             if k not in names:
                 raise ValueError(f"tension {k}: no such tendon (robot has {', '.join(names)})")
+            if c.ndim > 1:
+                raise ValueError(f"batch: tension {k}: one value or (N,) values (one a "
+                                 f"sample), not an array of shape {c.shape}")
         n = max((c.size for c in cols.values()), default=1)
         if odd := [f"{k} ({c.size})" for k, c in cols.items() if c.size not in (1, n)]:
             raise ValueError(f"batch: every tendon's tensions are one value or {n} (one a "
                              f"sample), got {', '.join(odd)}")
         T = np.stack([np.broadcast_to(cols.get(k, np.zeros(1)), (n,)) for k in names], axis=1)
     else:
-        T = np.asarray(tensions, float).reshape(-1, len(names))
+        T = np.asarray(tensions, float)
+        if T.ndim != 2 or T.shape[1] != len(names):
+            raise ValueError(f"batch: tensions as an array are (N, {len(names)}), a column per "
+                             f"tendon ({', '.join(names)}), not of shape {T.shape} (or give "
+                             f"{{tendon: (N,) values}}, or one {{tendon: value}} a sample)")
     n = T.shape[0]
     point_forces = force_pairs(point_forces)
     X = np.stack([np.broadcast_to(np.asarray(x, float), (n,)) for x, _ in point_forces], axis=1) \
@@ -483,7 +546,9 @@ def varied_values(base, values, n: int) -> dict[str, np.ndarray]:
             varied[k] = np.broadcast_to(a, (n, *np.shape(getattr(base, k))))
         except ValueError:
             raise ValueError(f"batch: {k} has shape {np.shape(val)}, not one value per "
-                             f"sample ({n})") from None
+                             f"sample ({n})" + (f" nor (N, n_tendons) = ({n}, "
+                                                f"{np.size(base.friction)}), one μ per tendon"
+                                                if k == "friction" else "")) from None
         if not np.all(np.isfinite(varied[k])):
             raise ValueError(f"batch: {k} must be finite")
         for v in np.unique(varied[k]):
