@@ -587,6 +587,21 @@ def test_a_solve_that_did_not_converge_is_not_dressed_as_one(tmp_path):
     assert (tmp_path / "s.png").stat().st_size > 10_000  # asked for: drawn, stamped
 
 
+def test_a_simulation_whose_start_is_no_solution_says_so(tmp_path):
+    """`simulate --from-equilibrium` from an equilibrium that did not converge names why (it
+    stopped on an AttributeError: Result had no note)."""
+    robot = tmp_path / "short.toml"
+    robot.write_text((ROOT / "examples" / "paper_prototype_damped.toml").read_text()
+                     + "\n[solver]\nmax_iterations = 2\n")
+    out = tmp_path / "m.csv"
+    p = cli("simulate", robot, "--tensions", ROOT / "examples" / "ramp_t1.csv", "--duration",
+            "1", "--from-equilibrium", "--point-force=0.25,0,0,-38", "-o", out)
+    assert p.returncode == 3 and "Traceback" not in p.stderr, p.stderr
+    assert p.stderr.startswith("tendonsense simulate: the equilibrium at t = 0 did not "
+                               "converge (the solver stopped after "), p.stderr
+    assert not out.exists()
+
+
 def test_a_python_result_that_is_no_solution_says_so(prototype, tmp_path):
     """From Python, a solve or an estimate without a solution warns (its result is the last
     iterate: a script printing its magnitudes read -1.48 N ± 1.17 N without a word); a
