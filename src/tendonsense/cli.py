@@ -1065,16 +1065,7 @@ def _forces_text(args) -> list[str]:
 
 def _plot_shape(args, robot, result, unknowns=()):
     from . import plotting
-    estimated = []
-    if result.magnitudes is not None:
-        where = result.extra.get("locations") or [None] * len(unknowns)
-        band = result.extra.get("magnitude_range")  # a stuck tendon's
-        X_sigma = result.extra.get("location_sigma") or [None] * len(unknowns)
-        estimated = [plotting.Estimated(u.X if where[i] is None else where[i],
-                                        result.magnitudes[i] * np.asarray(u.direction),
-                                        result.sigma[i],
-                                        None if band is None else tuple(band[i]), X_sigma[i])
-                     for i, u in enumerate(unknowns) if isinstance(u, PointForceUnknown)]
+    estimated = plotting.estimated_forces(result, unknowns)
     written = [args.plot]
     if "location_profile" in result.extra:
         written.append(plotting.location_profile(result, _beside(args.plot, "_location"),

@@ -17,7 +17,7 @@ from .inputs import PointForce, check_point_forces, finite, tendon_vector  # noq
 from .compiled import Program
 from .kinematics import poses
 from .model import Model, material_values
-from .result import Result, joined, warns_if_not_converged
+from .result import Result, compact_repr, joined, warns_if_not_converged
 from .robot import Robot, check_robot
 from .rod import Overlap, overlap
 from .stability import SETTLED_NOTE, is_unstable, stiffness_ratio, tangent, unstable_note
@@ -257,6 +257,8 @@ class Derivatives:
     q: dict[str, np.ndarray]
     markers: dict[str, np.ndarray]
     displacements: dict[str, np.ndarray]
+
+    __repr__ = compact_repr
 
 
 @lru_cache(maxsize=CACHE_SIZE)

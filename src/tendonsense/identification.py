@@ -30,7 +30,7 @@ from .inputs import PARAMETERS, parameter_names  # noqa: F401 (API)
 from .kinematics import poses
 from .model import Structure
 from .readings import Snapshot, SnapshotError, motion_step_error, read_snapshots  # noqa: F401 (API)
-from .result import joined
+from .result import compact_repr, joined
 from .robot import Robot
 from .simulation import MAX_STEP, simulate
 from .statics import CACHE_SIZE, Drive, Unknowns, marker_positions, solve_system, terms
@@ -82,6 +82,8 @@ class Identified:
     warning: str = ""  # a converged fit that does not explain the data: why to doubt it
     #: the noise the fit assumed (1 σ, m): a marker coordinate, a tendon length change
     noise: tuple[float, float] | None = None
+
+    __repr__ = compact_repr
 
     def to_json(self) -> dict:
         out = {**self.parameters, "sigma": self.sigma, "marker_rmse": self.marker_rmse,

@@ -504,7 +504,10 @@ class Noise:
                                                                        self.tension)
         if length <= 0:
             raise ValueError(f"length noise: must be a positive number of metres, got {length:g}")
-        if not 0 < tension < 1:
+        if not tension > 0:
+            raise ValueError(f"tension noise: must be a positive fraction (relative, 0.01 is "
+                             f"1 %), got {tension:g}")
+        if not tension < 1:
             raise ValueError(f"tension noise: {FRACTION}, got {tension:g}")
         object.__setattr__(self, "length", length)
         object.__setattr__(self, "tension", tension)
@@ -604,8 +607,10 @@ def check_unknowns(robot: Robot, measured: Sequence[str], unknowns: Sequence[Unk
     n_loc = sum(isinstance(u, PointForceUnknown) and u.located for u in unknowns)
     if n_a < n_p + n_loc:
         where = (f" and {n_loc} unknown location{'s' if n_loc > 1 else ''}" if n_loc else "")
-        raise ValueError(f"{n_p} unknown load magnitude{'s' if n_p > 1 else ''}{where} need at "
-                         f"least {n_p + n_loc} tendons with measured length and tension; got "
+        need = n_p + n_loc
+        raise ValueError(f"{n_p} unknown load magnitude{'s' if n_p > 1 else ''}{where} "
+                         f"need{'s' if n_p == 1 and not n_loc else ''} at least {need} "
+                         f"tendon{'s' if need > 1 else ''} with measured length and tension; got "
                          f"{n_a} (n_a >= n_p{' + located' if n_loc else ''}, eq. 17)")
     if sum(isinstance(u, GravityUnknown) for u in unknowns) > 1:
         raise ValueError("gravity can be unknown only once")

@@ -23,7 +23,7 @@ from matplotlib.textpath import TextPath  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from .forward import THROUGH_ITSELF, crossing, model_for  # noqa: E402
-from .inputs import EDGE, friction_signs, parameter_words  # noqa: E402
+from .inputs import EDGE, PointForceUnknown, friction_signs, parameter_words  # noqa: E402
 from .kinematics import frames_fn  # noqa: E402
 from .readings import write_bytes_atomic  # noqa: E402
 from .result import Result, joined  # noqa: E402
@@ -87,11 +87,31 @@ class Estimated(NamedTuple):
     X_sigma: float | None = None
 
 
+def estimated_forces(result: Result, unknowns: Sequence) -> list[Estimated]:
+    """The point forces an estimate found (its ``unknowns``, as given to
+    :func:`~tendonsense.estimation.estimate`), to draw with :func:`shape`: each one's X (its
+    estimated location where it was located), force, 1-σ size, and its range over a stuck
+    tendon's band."""
+    if result.magnitudes is None:
+        return []
+    where = result.extra.get("locations") or [None] * len(unknowns)
+    band = result.magnitude_range
+    X_sigma = result.extra.get("location_sigma") or [None] * len(unknowns)
+    return [Estimated(u.X if where[i] is None else where[i],
+                      result.magnitudes[i] * np.asarray(u.direction, float), result.sigma[i],
+                      tuple(band[i]) if len(band) else None, X_sigma[i])
+            for i, u in enumerate(unknowns) if isinstance(u, PointForceUnknown)]
+
+
 def shape(result: Result, path, robot: Robot, *, forces: Sequence[Load] = (),
           estimated: Sequence[Estimated] = (), measured_markers: dict | None = None,
           title: str = "", given: str = "", failed: str | None = None,
           sliding: Mapping[str, str] | None = None) -> Path:
-    """The shape figure (:func:`shape_figure`) written as a PNG at ``path``."""
+    """The shape figure (:func:`shape_figure`) written as a PNG at ``path`` (atomically, the
+    legend below the views included), e.g. an estimate with the forces it found::
+
+        plotting.shape(est, "estimate.png", robot, estimated=plotting.estimated_forces(
+            est, unknowns), title="my robot: estimated", given="t1 at 2.1 N")"""
     return _save(shape_figure(result, robot, forces=forces, estimated=estimated,
                               measured_markers=measured_markers, title=title, given=given,
                               failed=failed, sliding=sliding), path)
@@ -118,7 +138,11 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     (:func:`~tendonsense.forward.solve`'s ``settle``) says SETTLED there.
 
     The figure is not pyplot's (``plt.close`` is not needed: it is freed with the last
-    reference to it); a notebook shows it as a cell's value, ``fig.savefig`` writes it."""
+    reference to it); a notebook shows it as a cell's value, and
+    ``fig.savefig(path, bbox_inches="tight")`` writes it (the legend lies below the views,
+    outside the figure's own box: :func:`shape` writes it so). The result carries no loads:
+    pass the known ones as ``forces`` and an estimate's as ``estimated``
+    (:func:`estimated_forces`)."""
     L = robot.rod.length
     loads = ([(X, np.asarray(f, float), newtons(float(np.linalg.norm(f))), KNOWN)
               for X, f in forces]
@@ -435,7 +459,7 @@ def _legend(fig, axes, tendons, markers, measured, loads, crossing=False):
         h.append(Line2D([], [], color=SLACK, label="slack tendon"))
     stuck = any(c == ESTIMATED and "stuck tendon" in label for _, _, label, c in loads)
     estimated = "estimated force (a stuck tendon: its range)" if stuck else \
-        "estimated force (± 1 σ)"
+        "estimated force (its label: ± 1 σ)"
     for colour, what in ((KNOWN, "known force"), (ESTIMATED, estimated)):
         if any(c == colour for *_, c in loads):
             h.append(Line2D([], [], color=colour, lw=2, marker=">", label=what))
@@ -656,10 +680,17 @@ def location_profile(result, path, length_noise: float | None = None):
                    label=f"length noise assumed, {length_noise * 1e3:g} mm (1 σ)")
     pad = 0.03 * span  # an estimate at an end of the range stays visible
     ax.set_xlim(X.min() * 1e3 - pad, X.max() * 1e3 + pad)
+    # the noise's level inside the frame, not on its edge
+    top = np.nanmax([*misfit[np.isfinite(misfit)], (length_noise or 0.0) * 1e3, 0.0])
+    if top > 0:  # (a minimum at 0 off the frame's edge too)
+        ax.set_ylim(-0.04 * top, 1.1 * top)
     ax.set_xlabel("X where the force acts (mm from the base)")
     ax.set_ylabel("RMS tendon-length misfit (mm)")
     ax.set_title("Where does the force act? Tendon-length misfit over X")
-    ax.legend(fontsize=8)
+    # below the axes: a profile rises on both sides, and a legend inside would cover it
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.17), ncol=2,
+              frameon=False)
+    fig.set_size_inches(6.5, 4.8)
     fig.tight_layout()
     if not result.converged:
         _stamp(fig, [ax], result.extra.get("note", ""))

@@ -240,9 +240,10 @@ def unstable_at(prob: Problem, x, drive, values: Values, parts=None) -> str:
     if (why and prob.n_magnitudes < 3 and len(prob.robot.tendons) >= 3
             and np.any(np.asarray(prob.unknowns.forces) != 0)):
         why += (" (a rod that has swung out of the plane of its loads is read wrongly along "
-                "a given direction: give three unknowns along x, y and z at the force's X, "
-                "e.g. --unknown X,1,0,0 --unknown X,0,1,0 --unknown X,0,0,1, with readings "
-                "of three tendons)")
+                "a given direction: give three unknowns along x, y and z at the force's X "
+                "(--unknown X,1,0,0 --unknown X,0,1,0 --unknown X,0,0,1; in Python "
+                "PointForceUnknown(X, d) for d along x, y and z), with readings of three "
+                "tendons)")
     return why
 
 

@@ -28,6 +28,8 @@ def _short(v) -> str:
         return f"<{type(v).__name__} of {len(v)}>"
     if isinstance(v, (float, np.floating)):
         return f"{float(v):.6g}"
+    if hasattr(v, "tendon_names") and hasattr(v, "rod"):  # a Robot: by its name
+        return f"<Robot {v.name!r}>"
     return repr(v)
 
 

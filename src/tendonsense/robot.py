@@ -263,7 +263,8 @@ class _Reader:
         if low is not None and (v <= low if low_open else v < low):
             self.fail(key, f"must be {'>' if low_open else '>='} {low:g}, got {v:g}")
         if high is not None and v > high:
-            self.fail(key, f"must be <= {high:g}, got {v:g}")
+            self.fail(key, f"must be <= {high:g}, got {v:g}" + (
+                " (lengths are in metres)" if key == "X" and v > 10 * high else ""))
         return v
 
     def integer(self, key, *, default=None, low=0, high=None):
@@ -349,7 +350,7 @@ def parse_robot(data: dict, source: str = "robot", default_name: str = "robot") 
             g.fail("acceleration", f"{np.linalg.norm(gravity):g} m/s² is more than "
                                    f"{MAX_GRAVITY:g} m/s² (accelerations are in m/s²: 9.81)")
 
-    base_position, base_rotation = (0.0, 0.0, 0.0), tuple(map(tuple, np.eye(3)))
+    base_position, base_rotation = (0.0, 0.0, 0.0), tuple(map(tuple, np.eye(3).tolist()))
     if top.has("base"):
         b = _Reader(data["base"], "base", source)
         b.check_keys(("position", "rotation"))
@@ -508,7 +509,7 @@ def _parse_tendon(r: _Reader, rod: Rod) -> Tendon:
             r.fail("disks", f"must be at least 2 disks, got {raw}" if raw < 2 else
                    f'{raw} disks, more than {MAX_DISKS} (disks = "continuous" is the limit of '
                    f'many closely spaced disks)')
-        disks = tuple(np.linspace(0.0, L, raw))
+        disks = tuple(np.linspace(0.0, L, raw).tolist())
     elif isinstance(raw, list):
         if len(raw) < 2:
             r.fail("disks", "must list at least 2 disk positions")

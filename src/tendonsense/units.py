@@ -17,7 +17,14 @@ def spread(sigma: float) -> str:
     that cannot tell the force's size)."""
     if not math.isfinite(sigma):
         return "± ∞"
-    return f"± {sigma:.2g} N ({_grams(sigma)} gF)"
+    g = sigma / GF
+    return (f"± {_two(sigma)} N ({f'{g:.1f}' if abs(g) < 100 else _two(g)} gF)")
+
+
+def _two(x: float) -> str:
+    """``x`` to two significant digits, without an exponent from 1e-4 up to 1e5 (370, not
+    3.7e+02)."""
+    return f"{float(f'{x:.2g}'):g}" if 1e-4 <= abs(x) < 1e5 else f"{x:.2g}"
 
 
 def _grams(force: float) -> str:
