@@ -183,6 +183,13 @@ def test_a_static_estimate_of_a_moving_log_is_noted(slow_rod):
         assert watched(samples(np.arange(500) * 0.01, still)) == [], seed
     assert watched(samples(t, y), undamped) == watched(samples([None] * len(t), y)) == []
     assert watched(samples(t * 1000, y)) == []  # stamps in ms: rows more than τ apart
+    assert watched(samples(np.r_[t[:5], t[4:]], np.r_[y[:5], y[4:]])) == []  # a stamp again
+    # rows τ apart (a window of 5 rows, under the 10 that set it): the first window is said
+    ramp = samples(np.arange(12) * 0.3, -0.01 * np.arange(12) * 0.3)
+    assert lag_window(0.3, 0.3) == 5 and "between rows 3 and" in lagging(ramp, robot, ["t1"],
+                                                                          1e-4)
+    (row, said), = watched(ramp)
+    assert row == 10 and "at row 5: " in said, said
 
 
 def test_force_step_followed():
@@ -360,7 +367,7 @@ def test_cli_dynamic(tmp_path, slow_rod):
     assert r.returncode == 0, r.stderr
     # estimated at rest, the lag is said (and in the Python summary of the same log)
     from tendonsense.logs import estimate_file
-    from tendonsense.readings import lagging, read_readings
+    from tendonsense.readings import LagWatch, lagging, read_readings
     note = lagging(read_readings(log, robot)[1], robot, ["t1"], Noise().length)
     assert note and f"tendonsense: {log}: note: {note}" in r.stderr.splitlines(), r.stderr
     assert note in estimate_file(robot, log, tmp_path / "s2.csv", [PointForceUnknown(
@@ -371,9 +378,9 @@ def test_cli_dynamic(tmp_path, slow_rod):
                        text=True, input=log.read_text())
     said = [line for line in r.stderr.splitlines() if "lags the readings" in line]
     assert r.returncode == 0 and len(said) == 1, r.stderr
-    row = int(said[0].split("at row ")[1].split(":")[0])
-    assert said[0].startswith("tendonsense: <stdin>: note: the robot moves") and (
-        r.stdout.index(f"\n{row},") > 0), said
+    watch = LagWatch(robot, ["t1"], Noise().length)
+    (expected,) = [n for s in read_readings(log, robot)[1] if (n := watch(s))]
+    assert said[0] == f"tendonsense: <stdin>: note: {expected}", said
     rows = list(csv.DictReader(open(out)))
     assert list(rows[0]) == list(next(csv.DictReader(open(static))))
     est, _ = _filtered(robot, cols)

@@ -137,6 +137,27 @@ def test_a_series_checks_its_readings_as_one_reading_is_checked(prototype):
      "measured tendons: t1 listed twice"),
     (lambda r: solve_batch(r, {"t1": [1.0, 2.0, 3.0], "t2": [1.0, 2.0]}),
      "every tendon's tensions are one value or 3 (one a sample), got t2 (2)"),
+    # a series or a batch: one {tendon: value} a sample or {tendon: (N,) values}, not a bare
+    # array (it raised "'numpy.float64' object is not iterable", or took 2.0 for a tendon)
+    (lambda r: estimate_series(problem(r, ["t1"], [TIP]), np.array([-4e-3, -5e-3]),
+                               np.array([2.0, 2.1])),
+     "displacements: one {tendon: value} a sample (a list of them) or {tendon: (N,) values}, "
+     "not an array of shape (2,)"),
+    (lambda r: estimate_series(problem(r, ["t1"], [TIP]), {"t1": -4e-3}, {"t1": 2.0}),
+     "not one value a tendon (a single reading is estimate()'s)"),
+    (lambda r: estimate_series(problem(r, ["t1"], [TIP]), {"t1": [-4e-3, -5e-3]},
+                               {"t1": [2.0, 2.1, 2.2]}), "2 displacement and 3 tension readings"),
+    (lambda r: solve_batch(r, {"t1": np.full((5, 1), 2.0)}),
+     "batch: tension t1: one value or (N,) values (one a sample), not an array of shape (5, 1)"),
+    (lambda r: solve_batch(r, np.full(5, 2.0)),
+     "batch: tensions as an array are (N, 3), a column per tendon (t1, t2, t3), not of shape "
+     "(5,)"),
+    (lambda r: solve_batch(r, [{"t1": 2.0}, {"t1": float("nan")}]),
+     "batch: sample 2: tension t1: must be finite"),
+    (lambda r: solve_batch(r, []), "batch: no samples"),
+    (lambda r: r.with_parameters(friction={"T1": 0.3}),
+     "friction T1: no such tendon (robot has t1, t2, t3)"),
+    (lambda r: Noise(tension=0.0), "tension noise: must be a positive fraction"),
 ])
 def test_the_python_api_says_what_it_expected(prototype, call, words):
     """A value of the wrong kind is named with what was expected, not a Python internal
@@ -600,6 +621,19 @@ def test_a_simulation_whose_start_is_no_solution_says_so(tmp_path):
     assert p.stderr.startswith("tendonsense simulate: the equilibrium at t = 0 did not "
                                "converge (the solver stopped after "), p.stderr
     assert not out.exists()
+
+
+def test_series_and_batches_take_readings_in_either_form(prototype):
+    """One {tendon: value} a sample, or {tendon: (N,) values} (a tendon's one value held):
+    the same estimates; solve_batch takes the list form too."""
+    prob = problem(prototype, ["t1"], [TIP])
+    ys, ts = [-0.004, -0.005, -0.006], [2.0, 2.1, 2.2]
+    rows = estimate_series(prob, [{"t1": y} for y in ys], [{"t1": t, "t2": 0.0} for t in ts])
+    cols = estimate_series(prob, {"t1": np.array(ys)}, {"t1": ts, "t2": 0.0})
+    assert [e.magnitudes[0] for e in rows] == [e.magnitudes[0] for e in cols]
+    assert estimate_series(prob, [], []) == estimate_series(prob, {}, {}) == []
+    a = solve_batch(prototype, [{"t1": t} for t in ts]).displacements["t1"]
+    np.testing.assert_array_equal(a, solve_batch(prototype, {"t1": ts}).displacements["t1"])
 
 
 def test_a_python_result_that_is_no_solution_says_so(prototype, tmp_path):

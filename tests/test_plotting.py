@@ -342,3 +342,14 @@ def test_a_shape_that_passes_through_itself_is_said_and_stamped():
     for t in fig.texts:
         box = t.get_window_extent(renderer)
         assert box.y1 <= fig.bbox.y1 and box.x1 <= fig.bbox.x1, t.get_text()
+
+
+def test_the_tension_bar_names_every_tendon_at_one_tension_as_all():
+    """Three tendons at one tension: "all tendons" and "all at anchor" beside the bar (their
+    names joined crowded its narrow side); two, or some of three, by name."""
+    fades = np.array([1.5, 1.0])
+    names = plotting._bar_names([(t, 1.5, None, fades) for t in ("t1", "t2", "t3")], 1.5)
+    assert [n for _, n in names] == ["all at anchor", "all tendons"]
+    names = plotting._bar_names([(t, 1.5, None, fades) for t in ("t1", "t2")]
+                                + [("t3", 0.0, None, 0 * fades)], 1.5)
+    assert [n for _, n in names] == ["t1, t2 at anchor", "t1, t2"]

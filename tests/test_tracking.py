@@ -298,3 +298,55 @@ def test_a_batch_checked_for_stability_says_what_solve_says(prototype):
     assert out.unstable.sum() == 4  # 8.3, 8.7, 9 and 10 N with these E, ν and μ
     with pytest.raises(ValueError, match="settle needs the stability check"):
         solve_batch(prototype, {"t1": t1}, hang, settle=True)
+
+
+def test_a_series_notes_where_a_tendon_has_fallen(prototype):
+    """estimate_series takes every tendon pulled in: on the tutorial's log (t1 pulled 1 → 3 N
+    and released from 3 s, weights of 0, 10 and 20 gF) the rows it notes are the release's,
+    where it errs by gram-forces (the friction history's estimate does not); a batch of the
+    same readings (no time order) is not noted."""
+    import csv
+    from conftest import ROOT
+    from tendonsense.logs import estimate_readings
+    from tendonsense.readings import read_readings
+    unknowns = [PointForceUnknown(0.25, (0, 0, -1))]
+    measured, samples = read_readings(ROOT / "examples" / "tutorial" / "readings.csv",
+                                      prototype)
+    with open(ROOT / "examples" / "tutorial" / "applied_weight.csv") as fh:
+        applied = np.array([float(r["applied_N"]) for r in csv.DictReader(fh)])
+    prob = problem(prototype, measured, unknowns)
+    y, T = [s.displacements for s in samples], [s.tensions for s in samples]
+    series = estimate_series(prob, y, T)
+    t = np.array([s.time for s in samples])
+    noted = np.array(["t1's from " in e.note for e in series])
+    # once t1 has fallen past its noise (1 %: 8.5 % below the highest of 150 readings),
+    # about 0.4 s into the release, every row
+    assert noted.any() and t[noted].min() > 3.0 and (t[~noted] < 3.6).all()
+    err = np.abs(np.array([e.magnitudes[0] for e in series]) - applied) / 9.80665e-3
+    history = estimate_readings(prototype, measured, samples, unknowns)
+    err_h = np.abs(np.array([e.magnitudes[0] for e in history]) - applied) / 9.80665e-3
+    assert err[noted].mean() > 5 > 1 > err_h[noted].mean() and err[~noted].mean() < 0.5
+    assert not any("fallen" in e.note for e in estimate_batch(prob, y, T))
+
+
+def test_the_fallen_rule_is_not_read_from_noise_nor_a_slack_tendon():
+    """A held tension with read-out noise (its highest reading creeps up over the hold) is
+    not noted over 20,000 readings; a slack tendon's offset jitter is not, nor a tendon
+    pulled again after it was slack; a fall past the noise is, from the reading it passes."""
+    from tendonsense.sliding import fallen
+    rng = np.random.default_rng(0)
+    names, n = ("t1", "t2", "t3"), 20_000
+    T = np.zeros((n, 3))
+    T[:, 0] = 2.0 * (1 + 0.01 * rng.standard_normal(n))
+    T[:, 1] = 0.02 + 0.005 * rng.random(n)
+    assert not any(fallen(T, np.full((n, 3), 0.4), names, 0.01))
+    T = np.zeros((4, 3))
+    T[:, 0] = [5.0, 0.0, 2.0, 4.0]
+    assert fallen(T, np.full((4, 3), 0.4), names, 0.01) == [""] * 4
+    T = np.zeros((8, 3))
+    T[:, 0] = [1.0, 2.0, 3.0, 2.95, 2.8, 2.5, 2.0, 2.5]
+    notes = fallen(T, np.full((8, 3), 0.4), names, 0.01)
+    assert [bool(s) for s in notes] == [False] * 4 + [True] * 4  # ln T down by 5.8 % or more
+    assert notes[4].startswith("tension fallen, t1's from 3 N (reading 3) to 2.8 N: ")
+    assert not any(fallen(T, np.zeros((8, 3)), names, 0.01))  # without friction
+    assert fallen(np.zeros((0, 3)), np.zeros((0, 3)), names, 0.01) == []

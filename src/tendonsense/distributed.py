@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Callable, Iterator, Mapping, Sequence
 import numpy as np
 
 from .inputs import (WALK, NoDampingWarning, Noise, Unknown, check_noise, check_point_forces,
-                     check_unknowns, tendon_vector, warn_no_damping)
+                     check_unknowns, per_sample, tendon_vector, warn_no_damping)
 from .readings import LogSummary, log_outputs
 from .result import SampleEstimate
 from .robot import Robot
@@ -260,7 +260,8 @@ def estimate_batch(client, robot: Robot, measured: Sequence[str], unknowns: Sequ
                    progress: Progress | None = None) -> list[SampleEstimate]:
     """:func:`tendonsense.tracking.estimate_batch` over a cluster (``client``; ``None``:
     this process): independent readings of the tendons ``measured`` ({tendon: m} and
-    {tendon: N} per sample), each with its own ``values`` if given, estimated for
+    {tendon: N} per sample, or {tendon: (N,) values}), each with its own ``values`` if given,
+    estimated for
     ``unknowns``; cut into chunks of ``task_size`` readings (:func:`task_chunks`), each chunk
     a task (:func:`estimate_chunk`), returned in the input order. The same numbers as
     :func:`estimate_chunk` on each chunk here; checked here before anything is sent.
@@ -272,6 +273,8 @@ def estimate_batch(client, robot: Robot, measured: Sequence[str], unknowns: Sequ
     from .estimation import problem
     from .tracking import varied_values
     prob = problem(robot, measured, unknowns, point_forces)
+    displacements = per_sample(displacements, "displacement")
+    tensions = per_sample(tensions, "tension")
     n = len(displacements)
     if n == 0 or len(tensions) != n:
         raise ValueError(f"batch: {n} displacement and {len(tensions)} tension readings (one "

@@ -270,22 +270,31 @@ def readings(robot: Robot, displacements_: Mapping[str, float],
 def per_sample(readings, what: str) -> list[Mapping[str, float]]:
     """A series' or a batch's ``readings`` of one kind (``what``: displacement or tension),
     one mapping a sample: a sequence of ``{tendon: value}`` as it is, or ``{tendon: (N,)
-    values}`` cut into one a sample; a ValueError naming both forms otherwise (e.g. a bare
-    array, whose columns would have no tendon)."""
+    values}`` cut into one a sample (a tendon's one value held in every sample); a ValueError
+    naming both forms otherwise (e.g. a bare array, whose columns would have no tendon)."""
     forms = (f"{what}s: one {{tendon: value}} a sample (a list of them) or {{tendon: (N,) "
              f"values}}")
-    if hasattr(readings, "items"):
+    if hasattr(readings, "items"):  # a tendon's one value holds for every sample
         cols = {}
         for name, v in readings.items():
-            a = np.asarray(v, object if isinstance(v, (str, bytes)) else None)
-            if a.ndim != 1:
-                raise ValueError(f"{forms}; {what} {name}: " + (
-                    "one value (a single reading is estimate()'s)" if a.ndim == 0 else
-                    f"an array of shape {a.shape}"))
+            try:
+                a = np.asarray(v, object if isinstance(v, (str, bytes)) else None)
+            except ValueError:  # ragged
+                raise ValueError(f"{forms}; {what} {name}: not (N,) values") from None
+            if a.ndim > 1:
+                raise ValueError(f"{forms}; {what} {name}: an array of shape {a.shape}")
             cols[name] = a.tolist()
-        if len({len(c) for c in cols.values()}) > 1:
-            raise ValueError(f"{forms}; the tendons' values differ in number ("
-                             + ", ".join(f"{k}: {len(c)}" for k, c in cols.items()) + ")")
+        sizes = {len(c) for c in cols.values() if isinstance(c, list)}
+        if not cols:
+            return []
+        if not sizes:
+            raise ValueError(f"{forms}, not one value a tendon (a single reading is "
+                             f"estimate()'s)")
+        if len(sizes) > 1:
+            raise ValueError(f"{forms}; the tendons' values differ in number (" + ", ".join(
+                f"{k}: {len(c)}" for k, c in cols.items() if isinstance(c, list)) + ")")
+        n = sizes.pop()
+        cols = {k: c if isinstance(c, list) else [c] * n for k, c in cols.items()}
         return [dict(zip(cols, row)) for row in zip(*cols.values())]
     if isinstance(readings, (str, bytes)) or not hasattr(readings, "__len__"):
         raise ValueError(f"{forms}, not a {type(readings).__name__}")

@@ -430,8 +430,13 @@ def _bar_names(tendons, vmax) -> list[tuple[float, str]]:
         if not groups or T - groups[-1][0] >= 0.04 * vmax:
             groups.append([T, [], []])
         groups[-1][1 + anchor].append(name)
-    return [(T, "; ".join(filter(None, (", ".join(actuator), ", ".join(anchor) and
-                                         f"{', '.join(anchor)} at anchor"))))
+    live = {name for _, _, name in ticks}
+
+    def said(names):  # three or more at one tension: "all" (the bar's side is narrow)
+        return "all" if len(names) >= 3 and set(names) == live else ", ".join(names)
+
+    return [(T, "; ".join(filter(None, (actuator and (said(actuator) + " tendons" * (
+        said(actuator) == "all")), anchor and f"{said(anchor)} at anchor"))))
             for T, actuator, anchor in groups]
 
 
@@ -459,7 +464,7 @@ def _legend(fig, axes, tendons, markers, measured, loads, crossing=False):
         h.append(Line2D([], [], color=SLACK, label="slack tendon"))
     stuck = any(c == ESTIMATED and "stuck tendon" in label for _, _, label, c in loads)
     estimated = "estimated force (a stuck tendon: its range)" if stuck else \
-        "estimated force (its label: ± 1 σ)"
+        "estimated force (± 1 σ in its label)"
     for colour, what in ((KNOWN, "known force"), (ESTIMATED, estimated)):
         if any(c == colour for *_, c in loads):
             h.append(Line2D([], [], color=colour, lw=2, marker=">", label=what))

@@ -691,8 +691,8 @@ class LagWatch:
     """:func:`lagging` for a stream, row by row: each measured length's rate fitted over the
     last :func:`lag_window` rows (at the median step of the first :data:`LAG_ROWS` rows), and
     the note given once, at the first row where τ|ẏ| exceeds :data:`LAG_NOTE` length noises
-    (the last row of the file's first such window). Call it with each sample; it returns the
-    note, or ''."""
+    (the last row of the file's first such window); none once a time stamp does not go
+    forward (as the file's). Call it with each sample; it returns the note, or ''."""
 
     def __init__(self, robot: Robot, measured: Sequence[str], length_noise: float):
         self.tau, self.measured = robot.rod.relaxation_time, list(measured)
@@ -704,6 +704,9 @@ class LagWatch:
     def __call__(self, sample: Sample) -> str:
         if self.done or sample.error or sample.time is None:
             return ""
+        if self.rows and not sample.time > self.rows[-1][0]:
+            self.done = True  # stamps that do not go forward (as :func:`lagging`: no note)
+            return ""
         self.rows.append((sample.time, [sample.displacements[n] for n in self.measured],
                           sample.row))
         if not self.window:
@@ -714,17 +717,20 @@ class LagWatch:
                 self.done = True  # the rod settles between rows (or stamps are not seconds)
                 return ""
             self.window = lag_window(self.tau, dt)
-        del self.rows[:-self.window]
         if len(self.rows) < self.window:
             return ""
+        # every window ending at a row not yet looked at (the first rows': once)
         t = np.array([r[0] for r in self.rows])
         y = np.array([r[1] for r in self.rows])
-        lag = np.nan_to_num(self.tau * np.abs(_slopes(t, y, self.window)[0]))
-        j = int(np.argmax(lag))
-        if lag[j] <= LAG_NOTE * self.noise:
+        lag = np.nan_to_num(self.tau * np.abs(_slopes(t, y, self.window)))
+        ends = [r[2] for r in self.rows[self.window - 1:]]  # each window's last row
+        del self.rows[:1 - self.window]
+        over = np.flatnonzero(lag.max(axis=1) > LAG_NOTE * self.noise)
+        if not over.size:
             return ""
-        self.done = True
-        return _lag_note(self.tau, self.measured[j], lag[j], self.noise, sample.row, "",
+        i, self.done = over[0], True
+        j = int(np.argmax(lag[i]))
+        return _lag_note(self.tau, self.measured[j], lag[i, j], self.noise, ends[i], "",
                          "; said once")
 
 

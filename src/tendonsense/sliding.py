@@ -38,6 +38,7 @@ import numpy as np
 from .compiled import Program
 from .inputs import EDGE
 from .model import Structure
+from .readings import RELEASE_AT_START
 from .statics import CACHE_SIZE
 from .tendons import turning
 
@@ -180,6 +181,45 @@ def _per_width(xp, last, width):
     correlation into a drift of the stuck state (``c σ² / μφ`` a reading); this one
     telescopes. ``last`` ≤ 0 (no shape yet): ``width`` alone."""
     return 0.5 * (1.0 / width + 1.0 / xp.where(last > 0, last, width))
+
+
+def fallen(T: np.ndarray, mu: np.ndarray, names, tension_noise: float) -> list[str]:
+    """Per reading of a series taken pulled in (``T`` (N, n_t) N, ``mu`` (N, n_t)), a note
+    naming the tendons with friction whose tension has fallen from its highest since it was
+    last slack by more than noise explains — released, stuck or paid out, the pulled-in law
+    misreads them — else ''. In ln T, the larger of
+    :data:`~tendonsense.readings.RELEASE_AT_START` and (r + max(NOISE_REACH, r) + 1) σ with
+    r = √(2 ln k): the highest of k noisy readings lies about rσ above their mean, and fewer
+    than one of them about rσ below it (one σ more: a hold of 20,000 readings at 1 % noise
+    noted none, 1 without it). A tension under a tenth of the
+    series' largest is slack (a sensor's offset): not looked at, and the tendon starts afresh
+    after it."""
+    T, mu = np.asarray(T, float), np.asarray(mu, float)
+    n = T.shape[0]
+    if n == 0:
+        return []
+    slack = ~(T > 0.1 * np.nanmax(T, initial=0.0))
+    top = np.full(T.shape[1], np.nan)  # each tendon's highest since it was last slack
+    at = np.zeros(T.shape[1], int)  # where, and how many readings it was the highest of
+    since = np.zeros(T.shape[1], int)
+    notes = []
+    for k in range(n):
+        since = np.where(slack[k], 0, since + 1)
+        higher = ~slack[k] & ~(T[k] <= top)  # (NaN top: the first reading after slack)
+        top = np.where(slack[k], np.nan, np.where(higher, T[k], top))
+        at = np.where(higher, k, at)
+        reach = np.sqrt(2 * np.log(np.maximum(since, 1)))
+        step = np.maximum(RELEASE_AT_START, tension_noise * (
+            reach + np.maximum(NOISE_REACH, reach) + 1.0))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            low = (mu[k] > 0) & ~slack[k] & (np.log(T[k] / top) < -step)
+        said = [f"{names[j]}'s from {top[j]:.4g} N (reading {at[j] + 1}) to {T[k, j]:.4g} N"
+                for j in np.flatnonzero(low)]
+        notes.append("" if not said else (
+            f"tension fallen, {', '.join(said)}: this series takes every tendon pulled in "
+            f"(eq. 10 as written); a released tendon is stuck or paid out, its friction "
+            f"otherwise (tendonsense.logs.estimate_readings follows each tendon's history)"))
+    return notes
 
 
 def band_range(middle, corners) -> np.ndarray:

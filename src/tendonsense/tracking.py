@@ -22,7 +22,7 @@ from .online import RESCUE_BUDGET, OnlineEstimator
 from .problem import Problem, band, confounded, covariance, misfit_notes  # noqa: F401 (API)
 from .result import SampleEstimate, compact_repr, joined
 from .robot import Robot, value_error
-from .sliding import NOISE_REACH, Band, FrictionHistory, labels, turning_program
+from .sliding import Band, FrictionHistory, fallen, labels, turning_program
 from .stability import (is_unstable, preload_stiffness_ratios, stiffness_ratio,
                         stiffness_ratios, tangent, unstable_note)
 from .statics import Drive, Unknowns, shape_outputs, solve_system
@@ -51,49 +51,32 @@ def estimate_series(prob: Problem, displacements: Sequence[Mapping[str, float]],
     chunk (:func:`series_chunks` hands over each chunk's estimates as it finishes).
 
     ``displacements`` and ``tensions``: one ``{tendon: value}`` a sample, or ``{tendon: (N,)
-    values}``. A converged sample where a tendon with friction has fallen below its highest
-    tension so far by more than the noise can (:data:`~tendonsense.sliding.NOISE_REACH`
-    tension noises) is noted: if it is released there, this series' law misreads it."""
+    values}``. A converged sample where a tendon with friction has fallen from its highest
+    tension more than the noise explains is noted (:func:`~tendonsense.sliding.fallen`): if it
+    is released there, this series' law misreads it."""
     displacements = per_sample(displacements, "displacement")
     tensions = per_sample(tensions, "tension")
+    out = _series(prob, displacements, tensions, noise, chunk, progress, values)
+    T = np.array([[_number(t.get(name, 0.0)) for name in prob.robot.tendon_names]
+                  for t in tensions], float).reshape(len(tensions), len(prob.robot.tendons))
+    mu = varied_values(prob.model.values, values, len(out)).get("friction", np.broadcast_to(
+        np.asarray(prob.model.values.friction, float), T.shape))
+    falls = fallen(T, mu, prob.robot.tendon_names, noise.tension)
+    return [replace(e, note=joined(e.note, falls[k])) if e.converged and falls[k] else e
+            for k, e in enumerate(out)]
+
+
+def _series(prob: Problem, displacements, tensions, noise: Noise, chunk: int, progress,
+            values) -> list[SampleEstimate]:
+    """:func:`estimate_series`' estimates, without its notes on fallen tensions (the runs of
+    :func:`estimate_batch` are in no time order)."""
     n = len(displacements)
     out: list[SampleEstimate | None] = [None] * n
     for first, estimates in series_chunks(prob, displacements, tensions, noise, chunk, values):
         out[first:first + len(estimates)] = estimates
         if progress:
             progress(first + len(estimates), n)
-    falls = fallen(prob, tensions, noise, values)
-    return [replace(e, note=joined(e.note, falls[k])) if e.converged and falls[k] else e
-            for k, e in enumerate(out)]
-
-
-def fallen(prob: Problem, tensions: Sequence[Mapping[str, float]], noise: Noise,
-           values: Mapping[str, object] | None = None) -> list[str]:
-    """Per sample of a series taken pulled in, a note where a tendon with friction reads
-    below its highest tension so far by more than :data:`~tendonsense.sliding.NOISE_REACH`
-    tension noises (a release, or the load pulling it out: its friction then runs the other
-    way), else ''."""
-    robot, n = prob.robot, len(tensions)
-    mu = varied_values(prob.model.values, values, n).get("friction", np.broadcast_to(
-        np.asarray(prob.model.values.friction, float), (n, len(robot.tendons))))
-    T = np.array([[_number(t.get(name, 0.0)) for name in robot.tendon_names]
-                  for t in tensions], float).reshape(len(tensions), -1)
-    top = np.fmax.accumulate(np.where(T > 0, T, np.nan), axis=0)
-    with np.errstate(invalid="ignore"):
-        low = (mu > 0) & (T < top * np.exp(-NOISE_REACH * noise.tension))
-    notes = []
-    for k in range(len(tensions)):
-        j = np.flatnonzero(low[k])
-        if not j.size:
-            notes.append("")
-            continue
-        name, j = robot.tendon_names[j[0]], j[0]
-        at = int(np.flatnonzero(T[:k + 1, j] == top[k, j])[0])
-        notes.append(f"{name}'s tension has fallen from {T[at, j]:.4g} N (sample {at + 1}) "
-                     f"to {T[k, j]:.4g} N: this series takes every tendon pulled in (eq. 10 "
-                     f"as written); if {name} is released here its friction runs the other "
-                     f"way (tendonsense.logs.estimate_readings follows each tendon's history)")
-    return notes
+    return out
 
 
 def _number(v) -> float:
@@ -277,8 +260,8 @@ def estimate_batch(prob: Problem, displacements: Sequence[Mapping[str, float]],
                    values: Mapping[str, object] | None = None) -> list[SampleEstimate]:
     """Estimate independent readings, returned in the input order (as
     :func:`estimate_series`'s: one ``{tendon: value}`` a sample, or ``{tendon: (N,)
-    values}``), each with every tendon pulled in unless ``values`` says otherwise; ``values``
-    gives each its own E, ν, ρ or μ ({name: (N,)}, as for :func:`solve_batch`).
+    values}``), each with every tendon pulled in; ``values`` gives each its own E, ν, ρ or μ
+    ({name: (N,)}, as for :func:`solve_batch`).
 
     The readings are ordered along their first principal direction so that neighbours
     warm-start each other, cut into ``workers`` runs, and the runs are solved concurrently
@@ -303,9 +286,9 @@ def estimate_batch(prob: Problem, displacements: Sequence[Mapping[str, float]],
             done[i] = d
             if progress:
                 progress(sum(done), n)
-        return estimate_series(prob, [displacements[k] for k in runs[i]],
-                               [tensions[k] for k in runs[i]], noise, progress=tick,
-                               values={name: v[runs[i]] for name, v in varied.items()})
+        return _series(prob, [displacements[k] for k in runs[i]],
+                       [tensions[k] for k in runs[i]], noise, 100, tick,
+                       {name: v[runs[i]] for name, v in varied.items()})
 
     with ThreadPoolExecutor(len(runs)) as pool:
         solved = list(pool.map(solve_run, range(len(runs))))
@@ -465,11 +448,14 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
 def batch_inputs(robot: Robot, base, tensions, point_forces, values):
     """Validated batch arrays: T (N, n_t), X (N, n_p), F (N, n_p, 3) and the varied values."""
     names = robot.tendon_names
-    if not isinstance(tensions, Mapping) and not isinstance(tensions, np.ndarray) and len(
-            tensions) and all(isinstance(t, Mapping) for t in tensions):  # one a sample
-        for t in tensions:
-            tendon_vector(robot, t, "tension")  # (the names)
-        tensions = {k: [t.get(k, 0.0) for t in tensions] for k in names}
+    if isinstance(tensions, Sequence) and tensions and all(
+            isinstance(t, Mapping) for t in tensions):  # one {tendon: value} a sample
+        for k, t in enumerate(tensions):
+            try:
+                tendon_vector(robot, t, "tension")  # (the names, finite)
+            except ValueError as exc:
+                raise ValueError(f"batch: sample {k + 1}: {exc}") from None
+        tensions = {name: [t.get(name, 0.0) for t in tensions] for name in names}
     if isinstance(tensions, Mapping):
         cols = {k: np.atleast_1d(np.asarray(v, float)) for k, v in tensions.items()}
         for k, c in cols.items():
@@ -484,7 +470,12 @@ def batch_inputs(robot: Robot, base, tensions, point_forces, values):
                              f"sample), got {', '.join(odd)}")
         T = np.stack([np.broadcast_to(cols.get(k, np.zeros(1)), (n,)) for k in names], axis=1)
     else:
-        T = np.asarray(tensions, float)
+        try:
+            T = np.asarray(tensions, float)
+        except (TypeError, ValueError):
+            T = np.zeros(np.shape(tensions) if np.ndim(tensions) < 2 else (0,))
+        if T.ndim == 1 and (len(names) == 1 or T.size == 0):  # one column, or none at all
+            T = T.reshape(-1, len(names))
         if T.ndim != 2 or T.shape[1] != len(names):
             raise ValueError(f"batch: tensions as an array are (N, {len(names)}), a column per "
                              f"tendon ({', '.join(names)}), not of shape {T.shape} (or give "

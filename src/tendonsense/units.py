@@ -18,19 +18,22 @@ def spread(sigma: float) -> str:
     if not math.isfinite(sigma):
         return "± ∞"
     g = sigma / GF
-    return (f"± {_two(sigma)} N ({f'{g:.1f}' if abs(g) < 100 else _two(g)} gF)")
+    return f"± {_two(sigma, 1e4)} N ({f'{g:.1f}' if abs(g) < 100 else _two(g, 1e6)} gF)"
 
 
-def _two(x: float) -> str:
-    """``x`` to two significant digits, without an exponent from 1e-4 up to 1e5 (370, not
-    3.7e+02)."""
-    return f"{float(f'{x:.2g}'):g}" if 1e-4 <= abs(x) < 1e5 else f"{x:.2g}"
+def _two(x: float, below: float) -> str:
+    """``x`` to two significant digits, without an exponent from 1e-4 up to ``below`` (370,
+    not 3.7e+02; newtons up to 1e4 as gram-force up to 1e6, so that both or neither have
+    one)."""
+    return f"{float(f'{x:.2g}'):g}" if 1e-4 <= abs(x) < below else f"{x:.2g}"
 
 
 def _grams(force: float) -> str:
-    """Gram-force to 0.1 gF, in powers of ten beyond a tonne (a σ that says "unknown")."""
+    """Gram-force to 0.1 gF, to four digits from a kilogram-force (as the newtons), in powers
+    of ten beyond a tonne (a σ that says "unknown")."""
     g = force / GF
-    return f"{g:.1f}" if abs(g) < 1e6 else f"{g:.2g}"
+    return f"{g:.1f}" if abs(g) < 1e3 else f"{float(f'{g:.4g}'):g}" if abs(g) < 1e6 \
+        else f"{g:.2g}"
 
 
 def between(low: float, high: float, text=newtons) -> str:
