@@ -191,8 +191,8 @@ def fallen(T: np.ndarray, mu: np.ndarray, names, tension_noise: float) -> list[s
     :data:`~tendonsense.readings.RELEASE_AT_START` and (r + max(NOISE_REACH, r) + 1) σ with
     r = √(2 ln k): the highest of k noisy readings lies about rσ above their mean, and fewer
     than one of them about rσ below it (one σ more: a hold of 20,000 readings at 1 % noise
-    noted none, 1 without it). A tension under a tenth of the
-    series' largest is slack (a sensor's offset): not looked at, and the tendon starts afresh
+    noted none, 1 without it). A tension under a tenth of the series' largest (a slack
+    tendon's sensor offset) or not a number is not looked at, and the tendon starts afresh
     after it."""
     T, mu = np.asarray(T, float), np.asarray(mu, float)
     n = T.shape[0]
@@ -200,8 +200,8 @@ def fallen(T: np.ndarray, mu: np.ndarray, names, tension_noise: float) -> list[s
         return []
     slack = ~(T > 0.1 * np.nanmax(T, initial=0.0))
     top = np.full(T.shape[1], np.nan)  # each tendon's highest since it was last slack
-    at = np.zeros(T.shape[1], int)  # where, and how many readings it was the highest of
-    since = np.zeros(T.shape[1], int)
+    at = np.zeros(T.shape[1], int)  # the reading it was
+    since = np.zeros(T.shape[1], int)  # readings since it was last slack
     notes = []
     for k in range(n):
         since = np.where(slack[k], 0, since + 1)
