@@ -353,3 +353,17 @@ def test_the_tension_bar_names_every_tendon_at_one_tension_as_all():
     names = plotting._bar_names([(t, 1.5, None, fades) for t in ("t1", "t2")]
                                 + [("t3", 0.0, None, 0 * fades)], 1.5)
     assert [n for _, n in names] == ["t1, t2 at anchor", "t1, t2"]
+
+
+def test_a_marker_name_keeps_off_another_points_arrow():
+    """A marker on a straight stretch is named below it, unless another point's arrow passes
+    there in this view (a curled rod's tip force past its mid marker ran through "mid"): then
+    above."""
+    L = 0.25
+    backbone = np.stack([np.linspace(0, 250, 51), np.zeros(51), np.zeros(51)], axis=1)
+    mid = np.array([125.0, 0.0, 0.0])
+    assert plotting._label_side(backbone, L, 0.125, mid, 0, 2, []) @ [0, -1] > 0.99
+    by = [(np.array([125.0, 0.0, -70.0]), np.array([0.0, 0.0, -55.0]), None, "", "b")]
+    assert plotting._label_side(backbone, L, 0.125, mid, 0, 2, by) @ [0, 1] > 0.99
+    far = [(np.array([200.0, 0.0, -70.0]), np.array([0.0, 0.0, -55.0]), None, "", "b")]
+    assert plotting._label_side(backbone, L, 0.125, mid, 0, 2, far) @ [0, -1] > 0.99

@@ -409,7 +409,24 @@ def _label_side(backbone, L, X, xyz, i, j, arrows):
     pull = sum((v[[i, j]] for a, v, *_ in arrows
                 if np.linalg.norm(a - xyz) < 0.05 * L * 1e3), np.zeros(2))
     toward = pull if np.linalg.norm(pull) > 1e-9 else np.array([0.0, -1.0])
-    return n if n @ toward >= 0 else -n
+    n = n if n @ toward >= 0 else -n
+    # not onto another point's arrow that passes by in this view (a curled rod's tip force
+    # past a marker near the base): the other side where it is clearer
+    reach = 0.08 * L * 1e3  # about where a label's text lies
+    shafts = [(a[[i, j]] - v[[i, j]], a[[i, j]]) for a, v, *_ in arrows
+              if np.linalg.norm(a - xyz) >= 0.05 * L * 1e3]
+
+    def clearance(d):
+        return min((_to_segment(xyz[[i, j]] + reach * d, *s) for s in shafts), default=np.inf)
+
+    return -n if clearance(n) < reach < clearance(-n) else n
+
+
+def _to_segment(p, a, b) -> float:
+    """The distance from point ``p`` to the segment from ``a`` to ``b`` (2-D)."""
+    ab = b - a
+    t = np.clip((p - a) @ ab / max(ab @ ab, 1e-300), 0.0, 1.0)
+    return float(np.linalg.norm(p - (a + t * ab)))
 
 
 def _align(d) -> dict:
