@@ -848,6 +848,6 @@ def simulation(sim, path, title: str = "simulated motion", given: str = ""):
     axes[-1 if sim.markers else 1].set_xlabel("time (s)")
     axes[0].set_title(title + ("" if not bad.any() else
                                f" — NOT CONVERGED at {int(bad.sum())} samples (shaded)")
-                      + (f"\n{given}" if given else ""), fontsize=10)
+                      + (f"\n{given}" if given else ""), fontsize=10, pad=10)
     fig.tight_layout()
     return _save(fig, path)
