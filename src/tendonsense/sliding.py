@@ -199,26 +199,28 @@ def fallen(T: np.ndarray, mu: np.ndarray, names, tension_noise: float) -> list[s
     if n == 0:
         return []
     slack = ~(T > 0.1 * np.nanmax(T, initial=0.0))
-    top = np.full(T.shape[1], np.nan)  # each tendon's highest since it was last slack
-    at = np.zeros(T.shape[1], int)  # the reading it was
-    since = np.zeros(T.shape[1], int)  # readings since it was last slack
-    notes = []
-    for k in range(n):
-        since = np.where(slack[k], 0, since + 1)
-        higher = ~slack[k] & ~(T[k] <= top)  # (NaN top: the first reading after slack)
-        top = np.where(slack[k], np.nan, np.where(higher, T[k], top))
-        at = np.where(higher, k, at)
-        reach = np.sqrt(2 * np.log(np.maximum(since, 1)))
-        step = np.maximum(RELEASE_AT_START, tension_noise * (
-            reach + np.maximum(NOISE_REACH, reach) + 1.0))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            low = (mu[k] > 0) & ~slack[k] & (np.log(T[k] / top) < -step)
-        said = [f"{names[j]}'s from {top[j]:.4g} N (reading {at[j] + 1}) to {T[k, j]:.4g} N"
-                for j in np.flatnonzero(low)]
-        notes.append("" if not said else (
-            f"tension fallen, {', '.join(said)}: this series takes every tendon pulled in "
-            f"(eq. 10 as written); a released tendon is stuck or paid out, its friction "
-            f"otherwise (tendonsense.logs.estimate_readings follows each tendon's history)"))
+    k = np.arange(n)[:, None]
+    # each tendon's highest since it was last slack: a running maximum that each slack
+    # reading restarts (the readings of a later stretch lifted above every earlier one's)
+    stretch = np.cumsum(slack, axis=0) * (np.nanmax(T, initial=0.0) + 1.0)
+    lifted = np.maximum.accumulate(np.where(slack, -np.inf, T + stretch), axis=0)
+    top = lifted - stretch
+    higher = ~slack & (T + stretch > np.vstack([np.full(T.shape[1], -np.inf), lifted[:-1]]))
+    at = np.maximum.accumulate(np.where(higher, k, 0), axis=0)  # the reading it was
+    since = k - np.maximum.accumulate(np.where(slack, k, -1), axis=0)  # readings since slack
+    reach = np.sqrt(2 * np.log(np.maximum(since, 1)))
+    step = np.maximum(RELEASE_AT_START, tension_noise * (
+        reach + np.maximum(NOISE_REACH, reach) + 1.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        low = (mu > 0) & ~slack & (np.log(T / top) < -step)
+    notes = [""] * n
+    for r in np.flatnonzero(low.any(axis=1)).tolist():
+        said = [f"{names[j]}'s from {top[r, j]:.4g} N (reading {at[r, j] + 1}) to "
+                f"{T[r, j]:.4g} N" for j in np.flatnonzero(low[r])]
+        notes[r] = (f"tension fallen, {', '.join(said)}: this series takes every tendon "
+                    f"pulled in (eq. 10 as written); a released tendon is stuck or paid out, "
+                    f"its friction otherwise (tendonsense.logs.estimate_readings follows each "
+                    f"tendon's history)")
     return notes
 
 
