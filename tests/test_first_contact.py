@@ -636,6 +636,34 @@ def test_series_and_batches_take_readings_in_either_form(prototype):
     np.testing.assert_array_equal(a, solve_batch(prototype, {"t1": ts}).displacements["t1"])
 
 
+def test_every_result_dumps_to_json(prototype):
+    """Each result object's ``to_json`` is plain JSON (lists, null for NaN) with its fields'
+    values: a series' samples (a bad row among them), a batch, a simulation, derivatives."""
+    from tendonsense.forward import solution_derivatives
+    prob = problem(prototype, ["t1"], [TIP])
+    series = estimate_series(prob, [{"t1": -0.004}, {"t1": 0.4}], [{"t1": 2.0}, {"t1": 2.0}])
+    batch = solve_batch(prototype, {"t1": [1.0, 2.0]})
+    sim = simulate(prototype, {"t1": 2.0}, duration=0.02)
+    d = solution_derivatives(prototype, {"t1": 2.0}, wrt=("young_modulus", "tensions"))
+    for result in (*series, batch, sim, d):
+        back = json.loads(json.dumps(result.to_json(), allow_nan=False))
+        assert "robot" not in back
+        for name, value in back.items():
+            mine = getattr(result, name)
+            if isinstance(mine, dict):
+                for k, v in mine.items():
+                    np.testing.assert_array_equal(np.array(back[name][k], float), v)
+            elif np.asarray(mine).dtype.kind in "fb":  # ([] for an empty array of any shape)
+                np.testing.assert_array_equal(np.array(value, float).reshape(np.shape(mine)),
+                                              mine)
+            else:
+                assert value == (list(mine) if isinstance(mine, (tuple, np.ndarray)) else mine)
+    assert back["q"].keys() == {"young_modulus", "tensions"}
+    bad = series[1].to_json()
+    assert bad["magnitudes"] == [None] and "0.4 m" in bad["note"]
+    assert batch.to_json()["notes"] == ["", ""]
+
+
 def test_a_python_result_that_is_no_solution_says_so(prototype, tmp_path):
     """From Python, a solve or an estimate without a solution warns (its result is the last
     iterate: a script printing its magnitudes read -1.48 N ± 1.17 N without a word); a

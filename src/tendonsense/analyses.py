@@ -69,12 +69,12 @@ def sensitivity_single(robot: Robot, tendon: str = "t1", forces_gf=(-25.0, -75.0
                "truth_converged": bool(truth.converged)}
         if not truth.converged or T <= 0:
             row["note"] = ("slack" if truth.converged else "forward problem failed: " + (
-                truth.extra.get("note") or "not converged"))
+                truth.note or "not converged"))
             rows.append(row)
             continue
         nominal = estimate_problem(prob, {tendon: y}, {tendon: T})
         if not nominal.converged:
-            row["note"] = "estimate failed: " + (nominal.extra.get("note") or "not converged")
+            row["note"] = "estimate failed: " + (nominal.note or "not converged")
             rows.append(row)
             continue
         row["estimate_N"] = float(nominal.magnitudes[0])

@@ -1318,8 +1318,8 @@ def _print_result(result, as_json: bool, title: str, robot, unknowns=()):
                 sx = result.extra["location_sigma"][i]
                 print(f"    acting at X = {X:.4g} m ± {sx:.2g} m ({X * 1e3:.0f} ± "
                       f"{sx * 1e3:.2g} mm) (1 σ)")
-    if result.extra.get("note"):
-        print(f"tendonsense: note: {result.extra['note']}", file=sys.stderr)
+    if result.note:
+        print(f"tendonsense: note: {result.note}", file=sys.stderr)
     print("tendons (length change: negative = pulled in):")
     for name in result.tensions:
         T, y = result.tensions[name], result.displacements[name]

@@ -320,7 +320,7 @@ class MotionFilter:
                     friction=np.asarray(values.friction)[:, -1])))
             if not start.converged:
                 return self._failed(joined("the first sample's quasi-static estimate did not "
-                                           "converge", start.extra.get("note")),
+                                           "converge", start.note),
                                     start.extra["x"], start.iterations)
             n = prob.n_z
             z = start.extra["x"][prob.model.nq:]

@@ -17,7 +17,7 @@ from .inputs import PointForce, check_point_forces, finite, tendon_vector  # noq
 from .compiled import Program
 from .kinematics import poses
 from .model import Model, material_values
-from .result import Result, compact_repr, joined, warns_if_not_converged
+from .result import Result, compact_repr, fields_json, joined, warns_if_not_converged
 from .robot import Robot, check_robot
 from .rod import Overlap, overlap
 from .stability import SETTLED_NOTE, is_unstable, stiffness_ratio, tangent, unstable_note
@@ -259,6 +259,7 @@ class Derivatives:
     displacements: dict[str, np.ndarray]
 
     __repr__ = compact_repr
+    to_json = fields_json
 
 
 @lru_cache(maxsize=CACHE_SIZE)

@@ -121,11 +121,19 @@ class Result:
         return out
 
 
+def fields_json(self) -> dict:
+    """A result's shown fields as plain JSON types (arrays as lists, NaN and infinity as
+    null), for ``json.dump``."""
+    return {f.name: _plain(getattr(self, f.name)) for f in dataclasses.fields(self) if f.repr}
+
+
 def _plain(v):
     if isinstance(v, dict):
         return {k: _plain(x) for k, x in v.items()}
     if isinstance(v, (list, tuple)):
         return [_plain(x) for x in v]
+    if isinstance(v, np.ndarray) and v.dtype.kind in "USO":  # notes, names
+        return _plain(v.tolist())
     if isinstance(v, np.ndarray) or hasattr(v, "__array__"):
         a = np.asarray(v, float)
         return a.tolist() if np.isfinite(a).all() else _plain(a.tolist())
@@ -159,6 +167,7 @@ class SampleEstimate:
     magnitude_range: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # if stuck
 
     __repr__ = compact_repr
+    to_json = fields_json
 
     def __post_init__(self):
         if not self.converged:  # (a list of them reads as numbers no more)

@@ -14,7 +14,7 @@ import numpy as np
 from . import inputs
 from .dynamics import Schedule, integrator
 from .forward import model_for
-from .result import compact_repr
+from .result import compact_repr, fields_json
 from .robot import Robot
 from .statics import shape_outputs
 
@@ -47,6 +47,7 @@ class Simulation:
     robot: Robot | None = field(default=None, repr=False)  # the robot simulated
 
     __repr__ = compact_repr
+    to_json = fields_json
 
     @property
     def ok(self) -> bool:

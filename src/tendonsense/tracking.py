@@ -20,7 +20,7 @@ from .inputs import (Noise, check_noise, first_force_error, force_pairs, frictio
 from .model import VALUE_NAMES
 from .online import RESCUE_BUDGET, OnlineEstimator
 from .problem import Problem, band, confounded, covariance, misfit_notes  # noqa: F401 (API)
-from .result import SampleEstimate, compact_repr, joined
+from .result import SampleEstimate, compact_repr, fields_json, joined
 from .robot import Robot, value_error
 from .sliding import Band, FrictionHistory, fallen, labels, turning_program
 from .stability import (is_unstable, preload_stiffness_ratios, stiffness_ratio,
@@ -315,6 +315,7 @@ class BatchResult:
     unstable: np.ndarray | None = None
 
     __repr__ = compact_repr
+    to_json = fields_json
 
 
 def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
