@@ -186,6 +186,31 @@ def test_the_command_line_on_many_logs(client, logs, tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == sorted(forces)
 
 
+def test_many_logs_that_all_fail_write_nothing(logs, tmp_path, capsys):
+    """Every log refused: each named, "nothing written", and no empty folder left behind
+    (it said "wrote into" the empty folder it had made)."""
+    folder, _ = logs
+    empty = tmp_path / "empty.csv"
+    empty.write_text("time,tension_t1,displacement_t1\n")
+    out = tmp_path / "out"
+    code = cli.main(["estimate", PROTOTYPE, "--readings", str(folder / "broken.csv"),
+                     str(empty), "--unknown", "0.25,0,0,-1", "-o", f"{out}/", "--quiet"])
+    captured = capsys.readouterr()
+    assert code == 1 and len(captured.err.strip().splitlines()) == 2, captured.err
+    assert captured.out.strip().endswith("2 failed; nothing written"), captured.out
+    assert not out.exists()
+    out.mkdir()  # a folder of the user's own is kept
+    assert cli.main(["estimate", PROTOTYPE, "--readings", str(folder / "broken.csv"),
+                     str(empty), "--unknown", "0.25,0,0,-1", "-o", f"{out}/", "--quiet",
+                     "--json"]) == 1
+    assert json.loads(capsys.readouterr().out)["output"] == "" and out.is_dir()
+    # one log named twice is a slip (it was estimated once, without a word); patterns that
+    # overlap give each log once
+    assert cli.main(["estimate", PROTOTYPE, "--readings", str(empty), str(empty), "--unknown",
+                     "0.25,0,0,-1", "-o", f"{out}/"]) == 2
+    assert capsys.readouterr().err.strip().endswith(f"--readings {empty} given twice")
+
+
 def test_handing_logs_to_a_cluster_loads_no_solver(client, logs, tmp_path):
     """A process that only hands logs to a cluster never imports JAX: its start-up (half a
     second and more) is not on the job's path; the workers do the work."""

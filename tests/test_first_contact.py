@@ -608,6 +608,34 @@ def test_a_solve_that_did_not_converge_is_not_dressed_as_one(tmp_path):
     assert (tmp_path / "s.png").stat().st_size > 10_000  # asked for: drawn, stamped
 
 
+@pytest.mark.parametrize("stage", [2, 6])
+def test_a_solve_that_did_not_converge_gives_its_last_iterate(tmp_path, stage):
+    """The result of a solve that did not converge is the last point accepted under the full
+    load, its residual the one there (it was the restart of a failed continuation, the
+    straight rod under 38 N, with another point's residual 5.7e-2), and its note says how far
+    the continuation came."""
+    from tendonsense.forward import _statics_drive, model_for
+    from tendonsense.result import NotConvergedWarning
+    from tendonsense.statics import Unknowns, residual, scaling
+    robot = tmp_path / "short.toml"
+    robot.write_text(PROTOTYPE.read_text() + f"\n[solver]\nmax_iterations = {stage}\n")
+    robot = load_robot(robot)
+    loads = [(0.25, (0.0, 0.0, -38.0))]
+    with pytest.warns(NotConvergedWarning):
+        r = solve(robot, {"t1": 2.0}, loads)
+    model, drive = model_for(robot), _statics_drive(robot, {"t1": 2.0}, loads)
+    v = model.values
+    rr, size = residual(model.structure, v, (), r.q, drive, Unknowns.none(3, 1), 1.0,
+                        scaling(v, ()))
+    floor = v.energy_floor * np.sqrt(v.young_modulus)
+    assert float(np.linalg.norm(rr) / (size + floor)) == pytest.approx(r.residual, rel=1e-9)
+    assert r.note.startswith("the solver stopped after ") and f"{r.residual:.2e}" in r.note
+    if stage == 6:  # its continuation solved a part of the load; its last iterate coiled
+        assert "it solved 32% of the load" in r.note and r.note.endswith(
+            "; at the last iterate: strain outside the model's range (a fibre compressed to "
+            "nothing)")
+
+
 def test_a_simulation_whose_start_is_no_solution_says_so(tmp_path):
     """`simulate --from-equilibrium` from an equilibrium that did not converge names why (it
     stopped on an AttributeError: Result had no note)."""
@@ -653,9 +681,13 @@ def test_every_result_dumps_to_json(prototype):
             if isinstance(mine, dict):
                 for k, v in mine.items():
                     np.testing.assert_array_equal(np.array(back[name][k], float), v)
-            elif np.asarray(mine).dtype.kind in "fb":  # ([] for an empty array of any shape)
+            elif np.asarray(mine).dtype.kind in "fbiu":  # ([] for an empty array of any
+                # shape; flags and counts as JSON's true/false and integers)
                 np.testing.assert_array_equal(np.array(value, float).reshape(np.shape(mine)),
                                               mine)
+                kind = {"b": bool, "i": int, "u": int}.get(np.asarray(mine).dtype.kind, float)
+                assert all(type(x) is kind for x in np.ravel(np.array(value, object))
+                           if x is not None), (name, value)
             else:
                 assert value == (list(mine) if isinstance(mine, (tuple, np.ndarray)) else mine)
     assert back["q"].keys() == {"young_modulus", "tensions"}
@@ -1352,6 +1384,16 @@ def test_a_force_beyond_a_tonne_is_written_in_powers_of_ten():
     from tendonsense.units import newtons
     assert newtons(0.0759, 0.0027) == "0.0759 N (7.7 gF) ± 0.0027 N (0.3 gF)"
     assert newtons(0.044, 5.1e5) == "0.044 N (4.5 gF) ± 5.1e+05 N (5.2e+07 gF)"
+
+
+def test_a_number_and_its_limit_are_written_apart():
+    """identify's warning read "1.2 times the noise assumed, where noise explains at most 1.2
+    times": a ratio and its limit to the digits that tell them apart."""
+    from tendonsense.units import apart
+    assert apart(1.2404, 1.2370) == ("1.240", "1.237")
+    assert apart(1.23, 1.18) == ("1.23", "1.18")
+    assert apart(1.27, 1.18) == ("1.3", "1.2") and apart(7.0, 1.2) == ("7", "1.2")
+    assert apart(2.0, 2.0) == ("2.00000", "2.00000")
 
 
 def test_a_sweeps_results_record_the_loads_given_beside_the_table(tmp_path):

@@ -145,7 +145,7 @@ def test_a_tendons_colour_follows_its_tension_along_it(prototype, direction):
         return
     assert (np.diff(level) <= 0).all() if direction == "in" else (np.diff(level) >= 0).all()
     assert level[0] != level[-1]
-    assert ticks["t1"] == pytest.approx(2.0) and ticks["t1 at anchor"] == pytest.approx(
+    assert ticks["t1 at actuator"] == pytest.approx(2.0) and ticks["t1 at anchor"] == pytest.approx(
         anchor, rel=1e-9)
     # the turning of the drawn path is the model's at every disk (its polyline through them)
     r = np.asarray(frames_fn(model.structure)(model.values, result.q, np.asarray(
@@ -345,14 +345,19 @@ def test_a_shape_that_passes_through_itself_is_said_and_stamped():
 
 
 def test_the_tension_bar_names_every_tendon_at_one_tension_as_all():
-    """Three tendons at one tension: "all tendons" and "all at anchor" beside the bar (their
-    names joined crowded its narrow side); two, or some of three, by name."""
+    """Three tendons at one tension: "all at actuator" and "all at anchor" beside the bar
+    (their names joined crowded its narrow side), "all tendons" without friction; two, or
+    some of three, by name; "at actuator" where the tension fades to the anchor (a bare "t1"
+    read as a name, not a place)."""
     fades = np.array([1.5, 1.0])
     names = plotting._bar_names([(t, 1.5, None, fades) for t in ("t1", "t2", "t3")], 1.5)
-    assert [n for _, n in names] == ["all at anchor", "all tendons"]
+    assert [n for _, n in names] == ["all at anchor", "all at actuator"]
     names = plotting._bar_names([(t, 1.5, None, fades) for t in ("t1", "t2")]
                                 + [("t3", 0.0, None, 0 * fades)], 1.5)
-    assert [n for _, n in names] == ["t1, t2 at anchor", "t1, t2"]
+    assert [n for _, n in names] == ["t1, t2 at anchor", "t1, t2 at actuator"]
+    # without friction one tension along each: the names alone
+    names = plotting._bar_names([(t, 1.5, None, fades[:1]) for t in ("t1", "t2", "t3")], 1.5)
+    assert [n for _, n in names] == ["all tendons"]
 
 
 def test_a_marker_name_keeps_off_another_points_arrow():
@@ -367,3 +372,35 @@ def test_a_marker_name_keeps_off_another_points_arrow():
     assert plotting._label_side(backbone, L, 0.125, mid, 0, 2, by) @ [0, 1] > 0.99
     far = [(np.array([200.0, 0.0, -70.0]), np.array([0.0, 0.0, -55.0]), None, "", "b")]
     assert plotting._label_side(backbone, L, 0.125, mid, 0, 2, far) @ [0, -1] > 0.99
+
+
+def test_a_unit_slips_shape_is_stamped_and_its_crowded_names_lead_to_their_markers(
+        prototype, figure):
+    """Young's modulus typed in kPa: the rod hangs 94 % longer than it is, the note on
+    standard error and now on the figure too, in red; in the top view its three markers lie
+    within 20 mm, their names moved apart down the view, each with a line to its marker. A
+    figure whose names sit beside their markers draws no such line."""
+    soft = solve(prototype.with_parameters(young_modulus=1e3))
+    assert soft.converged and "large strain: the centre line is 94% longer" in soft.note
+    fig = plotting.shape_figure(soft, prototype)
+    fig.canvas.draw()
+    said = " ".join(t.get_text() for t in fig.texts)
+    assert ("LARGE STRAIN: the centre line is 94% longer than the rod at rest; are the "
+            "values in SI units?") in said and "NOT CONVERGED" not in said
+    assert {ax.spines["top"].get_edgecolor() for ax in fig.axes[:2]} == {(1.0, 0.0, 0.0, 1.0)}
+    _, top = views(fig)
+    names = {t.get_text(): t for t in top.texts if t.get_text()}
+    leaders = _leaders(top)
+    moved = [n for n in prototype.marker_names if names[n].xyann[1] < -30]
+    assert len(moved) >= 1 and len(leaders) == len(moved)
+    for line in leaders:  # from a moved name to its marker
+        assert any(np.allclose(line.xy, names[n].xy) and line.xyann == names[n].xyann
+                   for n in moved)
+    assert not [t for ax in views(figure) for t in _leaders(ax)]
+    plt.close(fig)
+
+
+def _leaders(ax):
+    """The lines from a marker's name to it (the force arrows are empty texts too)."""
+    return [t for t in ax.texts
+            if not t.get_text() and (t.arrowprops or {}).get("arrowstyle") == "-"]

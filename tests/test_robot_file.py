@@ -358,7 +358,9 @@ def test_a_dangling_link_is_named(tmp_path):
     link = tmp_path / "paper_prototype.toml"
     link.symlink_to("../src/tendonsense/data/paper_prototype.toml")
     with pytest.raises(RobotFileError, match="a symbolic link to ../src/tendonsense/data/paper_"
-                                             "prototype.toml, which does not exist"):
+                                             "prototype.toml, which does not exist: a folder "
+                                             "copied with `cp -r` keeps its links; `cp -rL` "
+                                             r"copies the files\)$"):
         load_robot(link)
     with pytest.raises(RobotFileError, match=r"cannot read robot file \(No such file"):
         load_robot(tmp_path / "missing.toml")

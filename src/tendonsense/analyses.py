@@ -78,7 +78,7 @@ def sensitivity_single(robot: Robot, tendon: str = "t1", forces_gf=(-25.0, -75.0
             rows.append(row)
             continue
         row["estimate_N"] = float(nominal.magnitudes[0])
-        row["unstable"] = UNSTABLE_NOTE in nominal.extra.get("note", "")
+        row["unstable"] = UNSTABLE_NOTE in nominal.note
         x0 = nominal.extra["x"]
         for sign, tag in ((+1, "plus"), (-1, "minus")):
             cases = {
@@ -147,7 +147,7 @@ def sensitivity_3d(robot: Robot, forces_gf=None, tensions=1.5,
         entry = {"force_gF": np.asarray(f_gf, float).tolist(), "force_N": F.tolist(),
                  "estimate_N": nominal.magnitudes.tolist(),
                  "converged": bool(truth.converged and nominal.converged),
-                 "unstable": UNSTABLE_NOTE in nominal.extra.get("note", "")}
+                 "unstable": UNSTABLE_NOTE in nominal.note}
         if not entry["converged"]:  # no solution: no errors to draw from it
             for source in ("length", "tension", "friction"):
                 entry[source] = {"estimates_N": [], "mean_relative_error": float("nan"),

@@ -967,6 +967,8 @@ def _check_logs(args, robot, tensions, displacements):
             raise UsageError("tendonsense estimate: --readings -: standard input is one live "
                              "log, not one of several")
         found = sorted(glob.glob(r)) if PATTERN & set(r) else [r]
+        if found == [r] and args.readings.count(r) > 1:  # (patterns that overlap: each once)
+            raise UsageError(f"tendonsense estimate: --readings {r} given twice")
         if not found:
             raise ReadingsError(f"--readings {r}: no file matches")  # a missing input: 1
         logs += [f for f in found if f not in logs]
@@ -1075,7 +1077,7 @@ def _plot_shape(args, robot, result, unknowns=()):
             "estimate": "shape and forces estimated from tendon readings"}[args.command]
     plotting.shape(result, args.plot, robot, forces=_point_forces(args), estimated=estimated,
                    title=f"{robot.name}: {what}", given=_given(args),
-                   failed=None if result.converged else result.extra.get("note", ""),
+                   failed=None if result.converged else result.note,
                    sliding=getattr(args, "sliding", None))
     return written
 
@@ -1453,6 +1455,7 @@ def _logs(args, robot) -> int:
     out = Path(args.estimates)
     with _on_cluster(args) as client:  # before the bar's thread: a local cluster may fork
         prog = _Progress(args, "estimate")
+        made = not out.exists()
         try:
             try:
                 out.mkdir(exist_ok=True)
@@ -1465,6 +1468,11 @@ def _logs(args, robot) -> int:
         finally:
             prog.close()
     failed = [s for s in done if s.error]
+    wrote = f"wrote into {out}"
+    if len(failed) == len(done):  # no output: no folder made for it
+        if made and not any(out.iterdir()):
+            out.rmdir()
+        wrote = "nothing written"
     for s in done:
         if s.error:  # (the others written: the command goes on)
             print(f"tendonsense estimate: error: {s.error}", file=sys.stderr)
@@ -1476,11 +1484,12 @@ def _logs(args, robot) -> int:
     total = {k: sum(getattr(s, k) for s in done) for k in ("samples", "converged", "skipped")}
     if args.json:
         print(json.dumps({"logs": [s.to_json() for s in done], **total,
-                          "failed": [s.log for s in failed], "output": str(out)}))
+                          "failed": [s.log for s in failed],
+                          "output": "" if len(failed) == len(done) else str(out)}))
     else:
         print(f"estimated {len(done) - len(failed)} of {len(done)} logs ("
               f"{_counts(total['samples'], total['converged'], total['skipped'])})"
-              + (f"; {len(failed)} failed" if failed else "") + f"; wrote into {out}")
+              + (f"; {len(failed)} failed" if failed else "") + f"; {wrote}")
     if failed:
         return 1
     return 0 if total["converged"] == total["samples"] else _not_converged()

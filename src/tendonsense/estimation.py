@@ -286,7 +286,8 @@ def _result(prob: Problem, x, drive, values, T, noise, converged, iterations, re
             np.asarray(T, float)[columns], noise))
     note = joined(extra.pop("note", ""), converged and confounded(cov, n),
                   converged and unstable_at(prob, x, drive, values, parts))
-    return make_result(prob.model, x, T, NewtonResult(x, converged, iterations, res.residual, 0),
+    return make_result(prob.model, x, T, NewtonResult(x, converged, iterations, res.residual, 0,
+                                                   level=res.level),
                        why=why,
                        magnitudes=z[:n], sigma=sigma[:n],
                        sensitivity={k: v[:n] for k, v in sens.items()},

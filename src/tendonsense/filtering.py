@@ -328,7 +328,7 @@ class MotionFilter:
             P[-n:, -n:] = np.diag((10 * start.sigma + 1e-3 * np.abs(z) + 1e-12) ** 2)
             state, tuning = self._at_rest(time - REST, start.extra["x"], P, drive), self._start
             # (its innovation is against its own static fit: the fit's misfit test is its test)
-            first = misfit_part(start.extra.get("note", ""))
+            first = misfit_part(start.note)
         elif not time > self._t:
             return self._lost(f"time {time:g} s does not follow the last estimate's "
                               f"{self._t:g} s")

@@ -54,12 +54,16 @@ def _built(geometry: Robot) -> Model:
 
 def why_not(res: NewtonResult, fine: bool, tolerance: float) -> str:
     """Why the solver's ``res`` is no solution: its strain left the model's range (``fine``
-    False), or where the solver stopped."""
-    if not fine:
-        return INADMISSIBLE
+    False), or where the solver stopped (and the share of the load its continuation solved,
+    and its last iterate's strain, if out of range)."""
+    if not fine and float(res.residual) <= tolerance:  # (the solver's test, whatever the
+        return INADMISSIBLE  # verdict the caller put in res.converged)
+    level = 0.0 if res.level is None else float(res.level)
+    reached = f"; it solved {level:.0%} of the load" if 0.0 < level < 1.0 else ""
     return (f"the solver stopped after {int(res.iterations)} iterations (its load "
-            f"continuation's stages included) at relative residual {float(res.residual):.2e} "
-            f"(tolerance {tolerance:g})")
+            f"continuation's stages included{reached}) at relative residual "
+            f"{float(res.residual):.2e} under the full load (tolerance {tolerance:g})"
+            + ("" if fine else f"; at the last iterate: {INADMISSIBLE}"))
 
 
 def make_result(model: Model, x, tensions, res: NewtonResult, why: str | None = None,
@@ -104,17 +108,24 @@ def through_itself(robot: Robot, backbone) -> str:
             f"no contact, so the robot cannot take this shape")
 
 
-def large_strain(robot: Robot, backbone) -> str:
-    """A note where the centre line ``backbone`` is longer or shorter than the rod at rest by
-    more than :data:`LARGE_STRAIN` of it, or ''."""
+def stretched(robot: Robot, backbone) -> str:
+    """"the centre line is P% longer (shorter) than the rod at rest" where the centre line
+    ``backbone`` is longer or shorter than the rod at rest by more than :data:`LARGE_STRAIN`
+    of it, or ''."""
     change = np.linalg.norm(np.diff(np.asarray(backbone, float), axis=0), axis=1).sum() \
         / robot.rod.length - 1.0
     if abs(change) <= LARGE_STRAIN:
         return ""
-    return (f"large strain: the centre line is {abs(change):.0%} "
-            f"{'longer' if change > 0 else 'shorter'} than the rod at rest (the model's linear "
-            f"elasticity holds for strains of a few per cent; are the values in SI units, "
-            f"Young's modulus in Pa?)")
+    return (f"the centre line is {abs(change):.0%} {'longer' if change > 0 else 'shorter'} "
+            f"than the rod at rest")
+
+
+def large_strain(robot: Robot, backbone) -> str:
+    """A note where the centre line ``backbone`` is :func:`stretched`, or ''."""
+    change = stretched(robot, backbone)
+    return change and (f"large strain: {change} (the model's linear elasticity holds for "
+                       f"strains of a few per cent; are the values in SI units, Young's "
+                       f"modulus in Pa?)")
 
 
 def _statics_drive(robot: Robot, tensions, point_forces) -> Drive:
@@ -168,7 +179,7 @@ def solve(robot: Robot, tensions: Mapping[str, float] | None = None,
     ratio = stiffness_ratio(values, tangent(values, res, model.nq)) if bool(res.converged) \
         else np.nan
     if settle and (is_unstable(ratio) or not bool(res.converged)):
-        return settled(model, values, drive, unknowns, res.x, int(res.iterations), ratio)
+        return settled(model, values, drive, unknowns, res.stopped, int(res.iterations), ratio)
     shaky = unstable_note(ratio)
     return make_result(model, res.x, np.asarray(drive.tensions), res,
                        **({"extra": {"note": shaky}} if shaky else {}))

@@ -34,6 +34,7 @@ from .result import compact_repr, joined
 from .robot import Robot
 from .simulation import MAX_STEP, simulate
 from .statics import CACHE_SIZE, Drive, Unknowns, marker_positions, solve_system, terms
+from .units import apart
 
 
 #: default measurement noise (1 σ): markers, tendon length changes (m)
@@ -386,9 +387,10 @@ def misfit_of(kinds: dict[str, tuple[np.ndarray, float]], n_params: int
         dof_k = share[k]
         low = distribution.ppf(1 - MISFIT_QUANTILE, dof_k) if dof_k >= 1 else 0.0
         if c < low:
-            small.append(f"the {k} residuals are {np.sqrt(c / dof_k):.2g} times the {k} noise "
-                         f"assumed ({kinds[k][1]:g} m), where such noise gives at least "
-                         f"{np.sqrt(low / dof_k):.2g} times over {m} of them")
+            was, least = apart(np.sqrt(c / dof_k), np.sqrt(low / dof_k))
+            small.append(f"the {k} residuals are {was} times the {k} noise assumed "
+                         f"({kinds[k][1]:g} m), where such noise gives at least {least} "
+                         f"times over {m} of them")
             overstated.append(k)
     said = [f"{'; '.join(small)}: the {' and '.join(overstated)} noise is smaller than "
             f"assumed, and the ± values, which assume it, are too wide"] if small else []
@@ -400,8 +402,9 @@ def misfit_of(kinds: dict[str, tuple[np.ndarray, float]], n_params: int
         each = "" if len(seen) < 2 else " (" + ", ".join(
             f"the {k} ones {np.sqrt(c / d):.2g}" for k, (c, d) in seen.items()) + " times theirs)"
         above = [k for k, (c, d) in seen.items() if c > d] or list(seen)
-        said.append(f"the residuals are {ratio:.2g} times the noise assumed{each}, where noise "
-                    f"explains at most {np.sqrt(high / dof):.2g} times over {n} of them: the "
+        was, most = apart(ratio, np.sqrt(high / dof))
+        said.append(f"the residuals are {was} times the noise assumed{each}, where noise "
+                    f"explains at most {most} times over {n} of them: the "
                     f"model does not fit the data (a parameter not fitted, a load not given, a "
                     f"unit) or the {' and '.join(above)} noise is larger than assumed (as "
                     f"given); the ± values assume that noise alone")

@@ -22,7 +22,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.textpath import TextPath  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
-from .forward import THROUGH_ITSELF, crossing, model_for  # noqa: E402
+from .forward import THROUGH_ITSELF, crossing, model_for, stretched  # noqa: E402
 from .inputs import EDGE, PointForceUnknown, friction_signs, parameter_words  # noqa: E402
 from .kinematics import frames_fn  # noqa: E402
 from .readings import write_bytes_atomic  # noqa: E402
@@ -181,7 +181,7 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     fig = Figure()
     FigureCanvasAgg(fig)
     axes, cax = [fig.add_axes((0, 0, 1, 1)) for _ in VIEWS], fig.add_axes((0, 0, 1, 1))
-    note = result.extra.get("note", "") if failed is None and result.converged else ""
+    note = result.note if failed is None and result.converged else ""
     where = crossing(robot, result.backbone) if THROUGH_ITSELF in note else None
     Xb = np.linspace(0.0, L, len(backbone))
     rings = None if where is None else np.array(
@@ -189,11 +189,14 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
     warning = joined("UNSTABLE EQUILIBRIUM: the rod would leave this shape for another"
                      if UNSTABLE_NOTE in note else "",
                      "PASSES THROUGH ITSELF: the model has no contact, the robot cannot take "
-                     "this shape" if THROUGH_ITSELF in note else "")
+                     "this shape" if THROUGH_ITSELF in note else "",
+                     (f"LARGE STRAIN: {strain}; are the values in SI units?")
+                     if "large strain: " in note and (strain := stretched(robot, result.backbone))
+                     else "")
     remark = ("SETTLED: the stable state the damped rod comes to rest in (the equilibrium "
               "solved for was unstable or not found; see the note)"
               if failed is None and result.converged
-              and result.extra.get("note", "").startswith(SETTLED_NOTE) else "")
+              and result.note.startswith(SETTLED_NOTE) else "")
     texts = (title, given, warning, remark)
     tmax = max([T for _, T, _, along in tendons for T in (T, *along)], default=0.0)
     norm = Normalize(0.0, tmax if tmax > 0 else 1.0)
@@ -202,6 +205,7 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
                     for _, n in bar_names], default=0.0)
     pt_per_mm = 72 * _place(fig, axes, cax, lo, hi, texts, names_in)
     X_of = {m.name: m.X for m in robot.markers}
+    leaders = []  # each marker's name and where it was first put
     for view, (ax, (name, i, j)) in enumerate(zip(axes, VIEWS)):
         ax.set_title(name, loc="left", fontsize=9)
         ax.set_ylabel(f"{'xyz'[j]} (mm)")
@@ -224,9 +228,10 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
             clear = 0.0 if m not in X_of else max([0.0, *(
                 (np.array([np.interp(X_of[m], X, r[:, c]) for c in (i, j)]) - xyz[[i, j]]) @ n
                 for (_, _, r, _), X in zip(tendons, routes))])
-            ax.annotate(m, xyz[[i, j]], xytext=(9 + clear * pt_per_mm) * n, fontsize=8,
-                        textcoords="offset points", color=colour, bbox=_LABEL_BOX, zorder=6,
-                        **_align(n))
+            name = ax.annotate(m, xyz[[i, j]], xytext=(9 + clear * pt_per_mm) * n,
+                               fontsize=8, textcoords="offset points", color=colour,
+                               bbox=_LABEL_BOX, zorder=6, **_align(n))
+            leaders.append((name, tuple(name.xyann)))
         if markers:
             ax.scatter(*_points(markers)[:, [i, j]].T, s=30, fc="white", ec="black", lw=1.2,
                        zorder=5)
@@ -240,6 +245,12 @@ def shape_figure(result: Result, robot: Robot, *, forces: Sequence[Load] = (),
         _separate(fig, axes)
         lo, hi = _fit_text(fig, axes, lo, hi)
         _place(fig, axes, cax, lo, hi, texts, names_in)
+    for name, first in leaders:  # a name moved off another one: a line to its marker
+        if tuple(name.xyann) != first:
+            name.axes.annotate("", name.xy, xytext=name.xyann, textcoords="offset points",
+                               zorder=5, arrowprops=dict(arrowstyle="-", lw=0.6, alpha=0.6,
+                                                         color=name.get_color(), shrinkA=0,
+                                                         shrinkB=4))
     if axes[0].get_position().y0 > axes[1].get_position().y1:
         axes[0].tick_params(labelbottom=False)
     else:
@@ -437,8 +448,9 @@ def _align(d) -> dict:
 
 
 def _bar_names(tendons, vmax) -> list[tuple[float, str]]:
-    """The tension bar's names: each tendon at its tension at the actuator and, where that
-    differs, at its anchor (names at about one tension joined)."""
+    """The tension bar's names: each tendon at its tension at the actuator ("at actuator"
+    where it differs at its anchor) and there, at its anchor (names at about one tension
+    joined)."""
     ticks = [(T, 0, name) for name, T, _, _ in tendons if T > 0]
     ticks += [(along[-1], 1, name) for name, T, _, along in tendons
               if T > 0 and abs(along[-1] - T) >= 0.04 * vmax]
@@ -452,8 +464,14 @@ def _bar_names(tendons, vmax) -> list[tuple[float, str]]:
     def said(names):  # three or more at one tension: "all" (the bar's side is narrow)
         return "all" if len(names) >= 3 and set(names) == live else ", ".join(names)
 
-    return [(T, "; ".join(filter(None, (actuator and (said(actuator) + " tendons" * (
-        said(actuator) == "all")), anchor and f"{said(anchor)} at anchor"))))
+    fading = {name for _, anchor, name in ticks if anchor}
+
+    def at_actuator(names):
+        return said(names) + (" at actuator" if fading & set(names) else
+                              " tendons" if said(names) == "all" else "")
+
+    return [(T, "; ".join(filter(None, (actuator and at_actuator(actuator),
+                                        anchor and f"{said(anchor)} at anchor"))))
             for T, actuator, anchor in groups]
 
 
@@ -715,7 +733,7 @@ def location_profile(result, path, length_noise: float | None = None):
     fig.set_size_inches(6.5, 4.8)
     fig.tight_layout()
     if not result.converged:
-        _stamp(fig, [ax], result.extra.get("note", ""))
+        _stamp(fig, [ax], result.note)
     return _save(fig, path, tight=False)
 
 

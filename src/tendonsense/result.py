@@ -112,7 +112,7 @@ class Result:
             q=_plain(self.q), tensions=_plain(self.tensions),
             displacements=_plain(self.displacements), markers=_plain(self.markers),
             backbone=_plain(self.backbone), converged=bool(self.converged),
-            iterations=int(self.iterations), residual=float(self.residual))
+            iterations=int(self.iterations), residual=_plain(float(self.residual)))
         if self.sigma is not None:
             out["sigma"] = _plain(self.sigma)
         if self.sensitivity is not None:
@@ -132,15 +132,15 @@ def _plain(v):
         return {k: _plain(x) for k, x in v.items()}
     if isinstance(v, (list, tuple)):
         return [_plain(x) for x in v]
-    if isinstance(v, np.ndarray) and v.dtype.kind in "USO":  # notes, names
+    if isinstance(v, np.ndarray) and v.dtype.kind in "USObiu":  # notes, flags, counts
         return _plain(v.tolist())
-    if isinstance(v, np.ndarray) or hasattr(v, "__array__"):
-        a = np.asarray(v, float)
-        return a.tolist() if np.isfinite(a).all() else _plain(a.tolist())
     if isinstance(v, (bool, np.bool_)):
         return bool(v)
     if isinstance(v, (int, np.integer)):
         return int(v)
+    if isinstance(v, np.ndarray) or hasattr(v, "__array__"):
+        a = np.asarray(v, float)
+        return a.tolist() if np.isfinite(a).all() else _plain(a.tolist())
     if isinstance(v, (float, np.floating)):
         return float(v) if np.isfinite(v) else None  # JSON has no NaN or infinity
     return v

@@ -212,7 +212,8 @@ def load_robot(path: str | Path) -> Robot:
     except OSError as exc:
         why = exc.strerror
         if path.is_symlink() and not path.exists():  # e.g. a folder copied without -L
-            why = f"a symbolic link to {os.readlink(path)}, which does not exist"
+            why = (f"a symbolic link to {os.readlink(path)}, which does not exist: a folder "
+                   f"copied with `cp -r` keeps its links; `cp -rL` copies the files")
         raise RobotFileError(f"{path}: cannot read robot file ({why})") from None
     try:
         data = tomllib.loads(text)

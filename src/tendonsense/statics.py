@@ -166,6 +166,8 @@ class NewtonResult(NamedTuple):
     residual: jax.Array  # ‖r‖ / (load size + floor)
     evaluations: jax.Array  # residual + Jacobian evaluations
     jacobian: jax.Array | None = None  # of the scaled residual at x (the last accepted point)
+    level: jax.Array | None = None  # the share of the load solved (1 converged; continuation)
+    stopped: jax.Array | None = None  # where the loop stopped, at any load level (x converged)
 
 
 def _merit(r):
@@ -188,7 +190,8 @@ def newton_solver(structure: Structure, measured: tuple[int, ...], n_z: int):
     and gives the next Newton step, rejected it halves α. A level whose Newton iteration fails
     (α underflows or ``max_iterations`` evaluations) falls back: the full load from ``x0`` to
     continuation from the straight rod at λ = 1/4, a continuation step to half its size.
-    Every pass counts against ``budget`` evaluations.
+    Every pass counts against ``budget`` evaluations. The result is the last point accepted at
+    the full load, with its residual: the solution, or where the solver stopped.
     """
     num = structure.numerics
 
@@ -222,6 +225,11 @@ def newton_solver(structure: Structure, measured: tuple[int, ...], n_z: int):
             new = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), accepted, rejected)
             new["evals"] = st["evals"] + 1
             new["level_evals"] = st["level_evals"] + 1
+            # the last point accepted at the full load: the result (a solution, or where the
+            # solver stopped; a restart's straight rod and a partial level's iterates are not)
+            full = ok & (st["target"] >= 1.0)
+            for k in ("x", "r", "J", "load"):
+                new[k + "_full"] = jnp.where(full, accepted[k], st[k + "_full"])
             failed = ~conv & ((new["level_evals"] >= num.max_iterations)
                               | (~ok & ((new["alpha"] < 2.0**-40) | (st["it"] < 0))))
             done = conv & (st["target"] >= 1.0)
@@ -243,13 +251,16 @@ def newton_solver(structure: Structure, measured: tuple[int, ...], n_z: int):
         n = x0.shape[0]
         st = dict(r=jnp.zeros(n), J=jnp.zeros((n, n)), load=jnp.asarray(0.0),
                   total=jnp.asarray(0),
-                  evals=jnp.asarray(0), status=jnp.asarray(0))
+                  evals=jnp.asarray(0), status=jnp.asarray(0), x_full=x0,
+                  r_full=jnp.full(n, jnp.inf), J_full=jnp.zeros((n, n)),
+                  load_full=jnp.asarray(0.0))
         st = restart(st, x0, jnp.asarray(0.0), jnp.asarray(1.0), jnp.asarray(0.25),
                      jnp.asarray(0))
         st = jax.lax.while_loop(cond, body, st)
-        return NewtonResult(st["x"], st["status"] == 1, st["total"],
-                            jnp.linalg.norm(st["r"]) / (st["load"] + floor), st["evals"],
-                            st["J"])
+        return NewtonResult(st["x_full"], st["status"] == 1, st["total"],
+                            jnp.linalg.norm(st["r_full"]) / (st["load_full"] + floor),
+                            st["evals"], st["J_full"],
+                            jnp.where(st["status"] == 1, 1.0, st["lam_good"]), st["x"])
 
     return Program(solve, "newton", (structure, measured, n_z))
 

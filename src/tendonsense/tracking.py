@@ -237,7 +237,7 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
 
 
 def _from_result(r) -> SampleEstimate:
-    note = r.extra.get("note", "" if r.converged else "did not converge")
+    note = r.note or ("" if r.converged else "did not converge")
     located = [k for k, v in enumerate(r.extra.get("locations", [])) if v is not None]
     return SampleEstimate(np.asarray(r.magnitudes), np.asarray(r.sigma), dict(r.markers),
                           bool(r.converged), int(r.iterations), np.asarray(r.extra["x"]), note,
@@ -389,6 +389,8 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
         return (base._replace(**{name: np.asarray(a[k]) for name, a in varied.items()}),
                 jax.tree_util.tree_map(lambda a: a[0], drive([k])))
 
+    stopped = {}  # where the solver of a sample that failed stopped (settled from there)
+
     def alone(k):  # sample k solved on its own from the straight rod, as :func:`solve`
         v, d = one(k)
         res = solve_system(structure, v, (), d, unknowns)
@@ -408,7 +410,7 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
                                                           True, tr.iterations[j])
                     continue
                 _, res, mk[k], y[k], conv[k], fine = alone(k)
-                q[k], its[k] = np.asarray(res.x), int(res.evaluations)
+                q[k], its[k], stopped[k] = np.asarray(res.x), int(res.evaluations), res.stopped
                 if not conv[k]:
                     notes[k] = why_not(res, fine, robot.numerics.tolerance)
             if stability:
@@ -424,11 +426,12 @@ def solve_batch(robot: Robot, tensions, point_forces: Sequence = (),
                             its[k] + int(res.evaluations))
                         ratio[k] = stiffness_ratio(v, tangent(v, res, structure.nq))
             for k in idx[(~conv[idx] | is_unstable(ratio[idx])) if settle else []]:
-                came = settled(model, *one(k), unknowns, q[k], its[k], ratio[k])
+                came = settled(model, *one(k), unknowns, stopped.get(k, q[k]), its[k],
+                               ratio[k])
                 q[k], conv[k], its[k], ratio[k] = came.q, came.converged, came.iterations, np.nan
                 mk[k] = [came.markers[m] for m in robot.marker_names]
                 y[k] = [came.displacements[t] for t in robot.tendon_names]
-                notes[k], rested[k] = came.extra["note"], True
+                notes[k], rested[k] = came.note, True
             good = np.flatnonzero(conv[idx] & ~rested[idx])  # a settled state starts no other
             if good.size:
                 x0 = q[idx[good[-1]]]

@@ -46,3 +46,14 @@ def between(low: float, high: float, text=newtons) -> str:
     if math.isfinite(high):
         return f"at most {text(high)}"
     return "unbounded"
+
+
+def apart(a: float, b: float) -> tuple[str, str]:
+    """``a`` and ``b`` each to two significant digits, or as many more (up to six) as tell
+    them apart (a ratio of 1.23 against a limit of 1.18 reads 1.23 and 1.18, not 1.2 twice;
+    equal to six digits, six digits each)."""
+    digits = next((d for d in range(2, 7) if f"{a:.{d}g}" != f"{b:.{d}g}"), 6)
+    sa, sb = f"{a:.{digits}g}", f"{b:.{digits}g}"
+    if digits > 2:  # (both to the digits that part them: 1.240 and 1.237)
+        sa, sb = (f"{x:#.{digits}g}".rstrip(".") for x in (a, b))
+    return sa, sb
