@@ -307,6 +307,10 @@ def test_output_files_are_readable_as_the_users_own(prototype, tmp_path):
      "a,t1,point_force,0.25\n", "row 1 (case 'a'): 1 tendons, 0 tensions"),
     ("case,tendon,unknown,force_X,tension_N,displacement_m,applied\n"
      "a,t1 t1,point_force,0.25,1 2,-0.001 -0.002,0.1\n", "a tendon named twice"),
+    # any kind but gravity was a point force, any with "3d" in it a 3-D one
+    ("case,tendon,unknown,force_X,tension_N,displacement_m,applied\n"
+     "a,t1,pointforce,0.25,1,-0.001,0.1\n",
+     "row 1 (case 'a'): unknown 'pointforce': one of point_force, point_force_3d, gravity"),
 ])
 def test_an_experiments_table_is_checked_before_jax(tmp_path, table, words):
     path = tmp_path / "table.csv"
@@ -512,6 +516,13 @@ def test_a_header_only_log_is_an_error(tmp_path):
     (("solve", PROTOTYPE, "--tension", "t1=2,0"), 1, "--tension: t1: not a number: '2,0'"),
     (("sensitivity", "--points", "nine"), 1, "--points: invalid int value: 'nine'"),
     (("sensitivity", "--points", "0"), 1, "--points 0: at least 1"),  # (it was 2)
+    # a slip in a parent's name made a tree of folders (at the file system's root, once)
+    (("sensitivity", "-o", "missing/x"), 1,
+     "-o/--out-dir missing/x: no folder 'missing' (the output folder is made in one that "
+     "exists)"),
+    (("resolution", "-o", ""), 1, "-o/--out-dir: an empty name"),  # (it wrote into ".")
+    (("sweep", PROTOTYPE, ROOT / "examples" / "sweep_sets.csv", "-o", ""), 1,
+     "-o/--results: an empty name (a file name is needed)"),
     (("sweep", PROTOTYPE, ROOT / "examples" / "sweep_sets.csv", "-o", "o.png"), 1,
      "-o/--results o.png: writes a CSV table, not a figure"),  # (it wrote the CSV there)
     (("solve", PROTOTYPE, "--tension", "t1=2", "--tensoin", "t2=1"), 2,
@@ -815,6 +826,37 @@ def test_the_papers_experiments_on_another_robot_say_so(capsys):
     assert "note: these are the readings" in capsys.readouterr().err  # not in the table
     main(["experiments", PROTOTYPE])
     assert "is not its robot file" not in capsys.readouterr().err
+
+
+def test_an_experiment_without_an_estimate_says_why(tmp_path, capsys, monkeypatch):
+    """A row the estimator cannot answer (a force across the plane t1 bends the rod in) said
+    "-" and "nan%" without a reason: now its reason on standard error and in --json, "-" for
+    its error; compare's table and figure say it too."""
+    from tendonsense.cli import main
+    from tendonsense.experiments import ExperimentRow
+    table = tmp_path / "table.csv"
+    table.write_text("case,tendon,unknown,force_X,direction,tension_N,displacement_m,applied\n"
+                     "unseen-1,t1,point_force,0.125,0 1 0,3.45,-0.011,0.64\n")
+    assert main(["experiments", PROTOTYPE, table]) == 3
+    out, err = capsys.readouterr()
+    assert "nan" not in out and "unseen-1" in out
+    assert ("tendonsense: case unseen-1: no estimate: the measured tendon (t1) does not "
+            "change length with unknown 1") in err
+    main(["experiments", PROTOTYPE, table, "--json"])
+    case, = json.loads(capsys.readouterr().out)["cases"]
+    assert case["estimate"] is None and "does not change length" in case["note"]
+    rows = [ExperimentRow("mid-1", np.array([0.6]), np.array([0.7]), None, True),
+            ExperimentRow("unseen-1", np.array([0.6]), None, None, False, "why")]
+    from tendonsense import plotting
+    drawn = []
+    monkeypatch.setattr(plotting, "_save", lambda fig, path, tight=True: drawn.append(fig))
+    plotting.comparison({"GVS": rows, "3D-PC": rows}, tmp_path / "c.png")
+    ax = drawn[0].axes[0]
+    assert [t.get_text() for t in ax.texts] == ["no estimate"] * 2  # one a model
+    assert [t.get_text() for t in ax.get_xticklabels()] == [
+        "mid\n(1 row)", "unseen\n(1 row, 0 estimated)"]
+    lo, hi = ax.get_xlim()
+    assert all(lo < t.get_position()[0] < hi for t in ax.texts)  # (they fell off its left)
 
 
 @pytest.mark.parametrize("kind, header, named", [

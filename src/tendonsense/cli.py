@@ -269,12 +269,12 @@ def _robot_argument(p, default: str | None = None):
 
 
 SHAPE_PLOT = ("also draw the rod's shape (side and top views), its markers, tendons and forces "
-              "into a PNG file (and, for a force of unknown location, the misfit over X into "
-              "SHAPE_location.png); a solve that did not converge is drawn stamped NOT "
+              "into a PNG file{}; a solve that did not converge is drawn stamped NOT "
               "CONVERGED")
 
 
-def _common(p: argparse.ArgumentParser, plot: tuple[str, str] = ("SHAPE.png", SHAPE_PLOT)):
+def _common(p: argparse.ArgumentParser,
+            plot: tuple[str, str] = ("SHAPE.png", SHAPE_PLOT.format(""))):
     _robot_argument(p)
     p.add_argument("--point-force", action="append", default=[], metavar="X,FX,FY,FZ",
                    type=_numbers(4, "X,FX,FY,FZ"),
@@ -289,8 +289,9 @@ def _analysis(sub, name, summary, description, robot_default):
     p = sub.add_parser(name, help=summary, description=description)
     _robot_argument(p, robot_default)
     p.add_argument("-o", "--out-dir", default="tendonsense_results", metavar="FOLDER",
-                   help="the folder for the table (CSV and JSON) and the figure (PNG); made if "
-                        "missing (default: tendonsense_results)")
+                   help="the folder for the tables (CSV, JSON), the figures (PNG) and a "
+                        "summary (JSON); made if missing, in a folder that exists (default: "
+                        "tendonsense_results)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--quiet", action="store_true",
                    help="do not show a progress bar (nor say that programs are compiling)")
@@ -300,7 +301,10 @@ def _analysis(sub, name, summary, description, robot_default):
 def _experiments_table(p):
     p.add_argument("csv", nargs="?", default=str(DATA / "paper_experiments.csv"),
                    metavar="EXPERIMENTS.csv",
-                   help="the experiments table (default: the paper's, shipped with tendonsense)")
+                   help="the experiments table (default: the paper's, shipped with "
+                        "tendonsense; the columns: case, tendon, unknown, tension_N, "
+                        "displacement_m, applied, and force_X, direction, paper_estimate where "
+                        "they apply, as in the manual's conventions)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -352,7 +356,8 @@ def build_parser() -> argparse.ArgumentParser:
                 "a least-squares fit. Every magnitude comes with a 1-sigma band for sensor "
                 "noise. A measured tendon needs its length change and its tension; in a log "
                 "every tendon has a tension_<name> column (zeros for a slack one).")
-    _common(p)
+    _common(p, ("SHAPE.png", SHAPE_PLOT.format(" (and, for a force of unknown location, the "
+                                               "misfit over X into SHAPE_location.png)")))
     p.add_argument("--displacement", action="append", default=[], type=_assignment,
                    metavar="NAME=M",
                    help="a measured tendon length change in metres (negative = pulled in); "
@@ -435,7 +440,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--param", action="append", metavar="NAME",
                    help="a parameter to fit: young_modulus, density, friction (one μ for every "
                         "tendon) or friction_<tendon>; repeatable (default: young_modulus and "
-                        "density); or damping, alone, with --readings")
+                        "density); or damping (Pa·s), alone, with --readings")
     p.add_argument("--point-force", action="append", default=[], metavar="X,FX,FY,FZ",
                    type=_numbers(4, "X,FX,FY,FZ"),
                    help="with --readings: a known force FX, FY, FZ (N, global frame) at X (m) "
@@ -466,7 +471,8 @@ def build_parser() -> argparse.ArgumentParser:
                   "ellipsoids); writes the tables, a summary and the figures.",
                   "paper_simulation.toml")
     p.add_argument("--points", type=int, default=9,
-                   help="tendon length changes per force in the one-tendon study (default 9)")
+                   help="tendon length changes per force in the one-tendon study, evenly "
+                        "from -20 mm to 0 (one: -20 mm alone; default 9)")
     _analysis(sub, "resolution", "the smallest force change the tension sensors can resolve "
               "(the paper's Section IV)",
               "For a range of applied tip forces, the smallest change of each force component "
@@ -538,9 +544,10 @@ def build_parser() -> argparse.ArgumentParser:
                 "one compiled program, whatever its numbers.")
     _robot_argument(p)
     p.add_argument("sets", metavar="SETS.csv",
-                   help="the parameter sets, one per row: tension_<tendon>, young_modulus, "
-                        "poisson_ratio, density, friction, friction_<tendon>, load_X/_fx/_fy/"
-                        "_fz, and descriptive columns (id, name, note) copied to the results")
+                   help="the parameter sets, one per row: tension_<tendon> (N), "
+                        "young_modulus (Pa), poisson_ratio, density (kg/m³), friction, "
+                        "friction_<tendon>, load_X (m) and load_fx/_fy/_fz (N, global), and "
+                        "descriptive columns (id, name, note) copied to the results")
     p.add_argument("-o", "--results", required=True, metavar="RESULTS.csv",
                    help="the results, one row per set (written atomically)")
     p.add_argument("--point-force", action="append", default=[], metavar="X,FX,FY,FZ",
@@ -624,6 +631,8 @@ def _once(pairs, flag: str) -> dict[str, float]:
 
 def _writable(path, what: str) -> None:
     """An output file's folder exists and can be written, before any computation."""
+    if not str(path).strip():
+        raise ValueError(f"{what}: an empty name (a file name is needed)")
     p = Path(path)
     folder = p.parent
     if p.is_dir():
@@ -1107,12 +1116,17 @@ def _check_analysis(args, robot):
                          f"takes at least 3 tendons; the robot has {len(robot.tendons)}")
     if args.command == "sensitivity" and args.points < 1:
         raise ValueError(f"tendonsense sensitivity: --points {args.points}: at least 1")
+    if not args.out_dir.strip():
+        raise ValueError("-o/--out-dir: an empty name (a folder name is needed)")
     out = Path(args.out_dir)
     if out.exists() and not out.is_dir():
         raise ValueError(f"-o/--out-dir {args.out_dir}: not a folder")
-    parent = next((p for p in (out, *out.parents) if p.exists()), Path("."))
-    if not parent.is_dir():
-        raise ValueError(f"-o/--out-dir {args.out_dir}: {str(parent)!r} is not a folder")
+    parent = out if out.exists() else out.parent  # (made in a folder that exists: a slip in
+    if not parent.is_dir():  # a parent's name makes no tree of folders)
+        there = next((p for p in (parent, *parent.parents) if p.exists()), None)
+        raise ValueError(f"-o/--out-dir {args.out_dir}: " + (
+            f"{str(there)!r} is a file, not a folder" if there is not None and not there.is_dir()
+            else f"no folder {str(parent)!r} (the output folder is made in one that exists)"))
     if not os.access(parent, os.W_OK):
         raise ValueError(f"-o/--out-dir {args.out_dir}: the folder {str(parent)!r} is not "
                          f"writable")
@@ -1138,7 +1152,7 @@ def _analysis_run(args, robot):
 
     def folder():  # made once the results are in: a failed run leaves none
         try:
-            out.mkdir(parents=True, exist_ok=True)
+            out.mkdir(exist_ok=True)
         except OSError as exc:
             raise ValueError(f"-o/--out-dir {args.out_dir}: cannot make the folder "
                              f"({exc.strerror})") from None
@@ -1184,9 +1198,12 @@ def _analysis_run(args, robot):
         ok = all(r.converged for rows in table.values() for r in rows)
         folder()
         table_, png_ = (out / name for name in ANALYSIS_FILES["compare"])
-        write_csv_atomic(table_, ["model", "case", "applied", "estimate", "error"],
+        write_csv_atomic(table_, ["model", "case", "applied", "estimate", "error", "converged",
+                                  "note"],
                          [[m, r.case, " ".join(map(str, r.applied)),
-                           "" if r.ours is None else " ".join(map(str, r.ours)), r.error(r.ours)]
+                           "" if r.ours is None else " ".join(map(str, r.ours)),
+                           "" if r.ours is None else r.error(r.ours),
+                           "true" if r.converged else "false", r.note]
                           for m, rows in table.items() for r in rows])
         files += [table_, plotting.comparison(table, png_)]
     prog.close()
@@ -1639,19 +1656,25 @@ def _experiments(args, robot) -> bool:
         print(json.dumps({"cases": [{"case": r.case, "applied": r.applied.tolist(),
                                     "estimate": None if r.ours is None else r.ours.tolist(),
                                     "paper_estimate": None if r.paper is None else r.paper.tolist(),
-                                    "converged": r.converged} for r in rows], **summary}))
+                                    "converged": r.converged, "note": r.note}
+                                   for r in rows], **summary}))
         return summary["converged"] == summary["rows"]
     print("estimated load magnitudes (N for forces, a scale factor for gravity) against the "
           "applied ones")
     print(f"{'case':<18} {'applied':>22} {'ours':>22} {'paper':>22} {'err ours':>9} "
           f"{'err paper':>9}")
     fmt = lambda v: "-" if v is None else " ".join(f"{x:.4f}" for x in v)  # noqa: E731
+    pct = lambda v: "n/a" if np.isnan(v) else f"{v:.1%}"  # noqa: E731
     for r in rows:
         print(f"{r.case:<18} {fmt(r.applied):>22} {fmt(r.ours):>22} {fmt(r.paper):>22} "
-              f"{r.error(r.ours):>9.1%} {r.error(r.paper):>9.1%}")
-    print(f"mean relative error: ours {summary['mean_relative_error_ours']:.1%}, paper "
-          f"{summary['mean_relative_error_paper']:.1%}; {summary['converged']}/"
+              f"{pct(r.error(r.ours)):>9} {pct(r.error(r.paper)):>9}")
+    print(f"mean relative error: ours {pct(summary['mean_relative_error_ours'])}, paper "
+          f"{pct(summary['mean_relative_error_paper'])}; {summary['converged']}/"
           f"{summary['rows']} rows converged")
+    for r in rows:
+        if not r.converged:
+            print(f"tendonsense: case {r.case}: no estimate: {r.note or 'not converged'}",
+                  file=sys.stderr)
     _other_robot_note(args, robot)
     return summary["converged"] == summary["rows"]
 

@@ -45,6 +45,7 @@ class ExperimentRow:
     ours: np.ndarray | None
     paper: np.ndarray | None
     converged: bool
+    note: str = ""  # why the row has no estimate, or a remark on it
 
     def error(self, which: np.ndarray | None) -> float:
         if which is None:
@@ -56,15 +57,21 @@ def _numbers(text: str, column: str) -> list[float]:
     return [inputs.finite(column, t) for t in re.split(r"[\s;,]+", text.strip()) if t]
 
 
+#: the unknowns a row may name
+KINDS = ("point_force", "point_force_3d", "gravity")
+
+
 def _unknowns(row: dict) -> list:
     kind = row["unknown"].strip().lower()
+    if kind not in KINDS:
+        raise ValueError(f"unknown {row['unknown']!r}: one of {', '.join(KINDS)}")
     if kind == "gravity":
         return [GravityUnknown()]
     if not (row.get("force_X") or "").strip():
         raise ValueError(f"unknown {row['unknown']!r}: a point force needs its force_X")
     X = inputs.finite("force_X", row["force_X"])
     d = _numbers(row.get("direction", "") or "", "direction")
-    if "3d" in kind.replace("-", "") or not d:
+    if kind == "point_force_3d" or not d:
         return [PointForceUnknown(X, tuple(e)) for e in np.eye(3)]
     if len(d) % 3:
         raise ValueError(f"direction {row['direction']!r} is not groups of 3 numbers")
@@ -131,15 +138,15 @@ def run(robot: Robot, table: str | Path | list[Experiment], progress=None
     for e in rows:
         res = estimate(robot, e.displacements, e.tensions, e.unknowns)
         out.append(ExperimentRow(e.case, e.applied, res.magnitudes if res.converged else None,
-                                 e.paper, bool(res.converged)))
+                                 e.paper, bool(res.converged), res.note))
         if progress is not None:
             progress(len(out), len(rows))
     return out
 
 
 def summary(rows: list[ExperimentRow]) -> dict:
-    ours = [r.error(r.ours) for r in rows]
+    ours = [e for r in rows if np.isfinite(e := r.error(r.ours))]
     paper = [r.error(r.paper) for r in rows if r.paper is not None]
     return {"rows": len(rows), "converged": sum(r.converged for r in rows),
-            "mean_relative_error_ours": float(np.nanmean(ours)) if rows else float("nan"),
+            "mean_relative_error_ours": float(np.mean(ours)) if ours else float("nan"),
             "mean_relative_error_paper": float(np.mean(paper)) if paper else float("nan")}

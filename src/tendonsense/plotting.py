@@ -448,9 +448,9 @@ def _align(d) -> dict:
 
 
 def _bar_names(tendons, vmax) -> list[tuple[float, str]]:
-    """The tension bar's names: each tendon at its tension at the actuator ("at actuator"
-    where it differs at its anchor) and there, at its anchor (names at about one tension
-    joined)."""
+    """The tension bar's names: each tendon at its tension at the actuator and, where that
+    differs, at its anchor (the first then says "at actuator"); names at about one tension
+    joined."""
     ticks = [(T, 0, name) for name, T, _, _ in tendons if T > 0]
     ticks += [(along[-1], 1, name) for name, T, _, along in tendons
               if T > 0 and abs(along[-1] - T) >= 0.04 * vmax]
@@ -587,10 +587,13 @@ def sensitivity_single(rows, path):
                     if mark[0] is shaky[0] else None)
         ax.axhline(f, color="grey", ls=":", lw=0.8,
                    label="applied force" if f == forces[0] else None)
-        for s in SOURCES:
-            lo = [min(r[f"{s}_plus_N"], r[f"{s}_minus_N"]) / GF for r in sel]
-            hi = [max(r[f"{s}_plus_N"], r[f"{s}_minus_N"]) / GF for r in sel]
-            ax.fill_between(y, lo, hi, color=COLOURS[s], alpha=0.25,
+        bands = {s: ([min(r[f"{s}_plus_N"], r[f"{s}_minus_N"]) / GF for r in sel],
+                     [max(r[f"{s}_plus_N"], r[f"{s}_minus_N"]) / GF for r in sel])
+                 for s in SOURCES}
+        width = {s: np.nanmean(np.subtract(hi, lo)) for s, (lo, hi) in bands.items()}
+        for s, (lo, hi) in bands.items():  # a narrower band over a wider one, each outlined
+            ax.fill_between(y, lo, hi, facecolor=COLOURS[s], alpha=0.25, edgecolor=COLOURS[s],
+                            lw=0.8, zorder=1.5 + sum(width[o] > width[s] for o in SOURCES) / 10,
                             label=f"range with a {s} error" if f == forces[0] else None)
     ax.set_xlabel("tendon length change y (mm)")
     ax.set_ylabel("estimated tip force F_z (gF)")
@@ -630,12 +633,14 @@ def ellipsoids(entries, path):
     ax.set_xlabel("F_x (gF)")
     ax.set_ylabel("F_y (gF)")
     ax.set_zlabel("F_z (gF)")
+    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):  # (seven ticks ran into each other)
+        axis.set_major_locator(MaxNLocator(5))
     ax.set_title("Estimated tip forces (2-σ ellipsoids; a small one\nhides inside a larger: "
                  "their sizes at the right)", fontsize=9)
     fig.suptitle("3-D tip forces estimated from three tendons under per-tendon errors")
     ax.legend(handles=[Line2D([], [], ls="", marker="o", color="black", label="applied")]
               + [Line2D([], [], color=COLOURS[s], lw=2, label=f"{s} error") for s in SOURCES],
-              fontsize=8)
+              fontsize=8, loc="upper left", bbox_to_anchor=(0.0, 0.95))
     width = 0.8 / len(SOURCES)
     idx = np.arange(len(entries))
     for i, s in enumerate(SOURCES):
@@ -678,16 +683,27 @@ def comparison(table: dict[str, list], path):
         series.append(("the paper's estimates", [r.error(r.paper) for r in rows], rows))
     width = 0.8 / len(series)
     for i, (name, errors, of) in enumerate(series):
-        means = [np.nanmean([e for e, r in zip(errors, of) if r.case.rsplit("-", 1)[0] == g])
-                 * 100 for g in groups]
+        means = []
+        for k, g in enumerate(groups):
+            e = [e for e, r in zip(errors, of) if r.case.rsplit("-", 1)[0] == g and np.isfinite(e)]
+            means.append(100 * np.mean(e) if e else np.nan)
+            if not e and name != "the paper's estimates":  # every row failed: said, not blank
+                ax.text(k + i * width, 0, "no estimate", rotation=90, ha="center",
+                        va="bottom", fontsize=7, color="red")
         ax.bar(np.arange(len(groups)) + i * width, means, width, label=name,
                color="0.6" if name == "the paper's estimates" else None)
+    ax.set_xlim(-0.6 * width - 0.1, len(groups) - 1 + (len(series) - 0.4) * width + 0.1)
     counts = [sum(r.case.rsplit("-", 1)[0] == g for r in rows) for g in groups]
+    done = [min(sum(r.converged and r.case.rsplit("-", 1)[0] == g for r in table[m])
+                for m in models) for g in groups]
     ax.set_xticks(np.arange(len(groups)) + width * (len(series) - 1) / 2,
-                  [f"{g.replace('_', ' ')}\n({n} rows)" for g, n in zip(groups, counts)])
+                  [f"{g.replace('_', ' ')}\n({n} row{'' if n == 1 else 's'}"
+                   + (f", {d} estimated" if d < n else "") + ")"
+                   for g, n, d in zip(groups, counts, done)])
     ax.set_xlabel("the paper's experiment (load case)")
-    ax.set_ylabel("mean relative force error (%)")
-    ax.set_title("Force error of each rod model on the paper's experiments")
+    ax.set_ylabel("mean relative error of the estimate (%)")
+    ax.set_title("Estimation error of each rod model on the paper's experiments\n(forces; "
+                 "the scale of gravity where it is the unknown)", fontsize=10)
     ax.legend()
     return _save(fig, path)
 
