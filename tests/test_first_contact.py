@@ -830,8 +830,8 @@ def test_the_papers_experiments_on_another_robot_say_so(capsys):
 
 def test_an_experiment_without_an_estimate_says_why(tmp_path, capsys, monkeypatch):
     """A row the estimator cannot answer (a force across the plane t1 bends the rod in) said
-    "-" and "nan%" without a reason: now its reason on standard error and in --json, "-" for
-    its error; compare's table and figure say it too."""
+    "-" and "nan%" without a reason: now its reason on standard error and in --json, "n/a"
+    for its error; compare's table and figure say it too."""
     from tendonsense.cli import main
     from tendonsense.experiments import ExperimentRow
     table = tmp_path / "table.csv"
