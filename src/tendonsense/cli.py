@@ -629,6 +629,16 @@ def _once(pairs, flag: str) -> dict[str, float]:
     return out
 
 
+def _folder_exists(given: str, folder: Path, why: str = "") -> None:
+    """A ValueError "GIVEN: no folder 'FOLDER'WHY" (or that a file stands where a folder of
+    its path should be) unless ``folder`` is one."""
+    if not folder.is_dir():
+        there = next((f for f in (folder, *folder.parents) if f.exists()), None)
+        if there is not None and not there.is_dir():
+            raise ValueError(f"{given}: {str(there)!r} is a file, not a folder")
+        raise ValueError(f"{given}: no folder {str(folder)!r}{why}")
+
+
 def _writable(path, what: str) -> None:
     """An output file's folder exists and can be written, before any computation."""
     if not str(path).strip():
@@ -637,11 +647,7 @@ def _writable(path, what: str) -> None:
     folder = p.parent
     if p.is_dir():
         raise ValueError(f"{what} {path}: is a folder, not a file")
-    if not folder.is_dir():
-        there = next((f for f in (folder, *folder.parents) if f.exists()), None)
-        if there is not None and not there.is_dir():
-            raise ValueError(f"{what} {path}: {str(there)!r} is a file, not a folder")
-        raise ValueError(f"{what} {path}: no folder {str(folder)!r}")
+    _folder_exists(f"{what} {path}", folder)
     if not os.access(folder, os.W_OK):
         raise ValueError(f"{what} {path}: the folder {str(folder)!r} is not writable")
 
@@ -1122,11 +1128,9 @@ def _check_analysis(args, robot):
     if out.exists() and not out.is_dir():
         raise ValueError(f"-o/--out-dir {args.out_dir}: not a folder")
     parent = out if out.exists() else out.parent  # (made in a folder that exists: a slip in
-    if not parent.is_dir():  # a parent's name makes no tree of folders)
-        there = next((p for p in (parent, *parent.parents) if p.exists()), None)
-        raise ValueError(f"-o/--out-dir {args.out_dir}: " + (
-            f"{str(there)!r} is a file, not a folder" if there is not None and not there.is_dir()
-            else f"no folder {str(parent)!r} (the output folder is made in one that exists)"))
+    # a parent's name makes no tree of folders)
+    _folder_exists(f"-o/--out-dir {args.out_dir}", parent,
+                   " (the output folder is made in one that exists)")
     if not os.access(parent, os.W_OK):
         raise ValueError(f"-o/--out-dir {args.out_dir}: the folder {str(parent)!r} is not "
                          f"writable")

@@ -228,8 +228,10 @@ def newton_solver(structure: Structure, measured: tuple[int, ...], n_z: int):
             # the last point accepted at the full load: the result (a solution, or where the
             # solver stopped; a restart's straight rod and a partial level's iterates are not)
             full = ok & (st["target"] >= 1.0)
-            for k in ("x", "r", "J", "load"):
-                new[k + "_full"] = jnp.where(full, accepted[k], st[k + "_full"])
+            new["x_full"] = jnp.where(full, xt, st["x_full"])
+            new["J_full"] = jnp.where(full, Jt, st["J_full"])
+            new["residual_full"] = jnp.where(full, jnp.linalg.norm(rt) / (load_t + floor),
+                                             st["residual_full"])
             failed = ~conv & ((new["level_evals"] >= num.max_iterations)
                               | (~ok & ((new["alpha"] < 2.0**-40) | (st["it"] < 0))))
             done = conv & (st["target"] >= 1.0)
@@ -252,14 +254,12 @@ def newton_solver(structure: Structure, measured: tuple[int, ...], n_z: int):
         st = dict(r=jnp.zeros(n), J=jnp.zeros((n, n)), load=jnp.asarray(0.0),
                   total=jnp.asarray(0),
                   evals=jnp.asarray(0), status=jnp.asarray(0), x_full=x0,
-                  r_full=jnp.full(n, jnp.inf), J_full=jnp.zeros((n, n)),
-                  load_full=jnp.asarray(0.0))
+                  J_full=jnp.zeros((n, n)), residual_full=jnp.asarray(jnp.inf))
         st = restart(st, x0, jnp.asarray(0.0), jnp.asarray(1.0), jnp.asarray(0.25),
                      jnp.asarray(0))
         st = jax.lax.while_loop(cond, body, st)
         return NewtonResult(st["x_full"], st["status"] == 1, st["total"],
-                            jnp.linalg.norm(st["r_full"]) / (st["load_full"] + floor),
-                            st["evals"], st["J_full"],
+                            st["residual_full"], st["evals"], st["J_full"],
                             jnp.where(st["status"] == 1, 1.0, st["lam_good"]), st["x"])
 
     return Program(solve, "newton", (structure, measured, n_z))
