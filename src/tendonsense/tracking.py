@@ -161,24 +161,38 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                                  values=model.values._replace(
                                      **{name: a[k] for name, a in varied.items()}))
         x0 = np.asarray(first.extra["x"], float) if first.converged else x0
+
+    def scan(run, x0, failing, before):  # dispatched, not awaited (JAX runs it meanwhile)
+        # a fixed scan length (padded with the last sample, not solved) keeps one program
+        rows = list(run) + [run[-1]] * (chunk - len(run))
+        drives = stacked_drives(prob, T[rows], Y[rows][:, meas])
+        if history is None:
+            return rows, track(np.asarray(x0, float), drives, prob.unknowns, model.values,
+                               {name: np.asarray(v[rows], float) for name, v in varied.items()},
+                               len(run), failing)
+        return rows, follow(np.asarray(x0, float), drives, prob.unknowns, model.values,
+                            np.asarray(given[rows], float), before, len(run), failing)
+
     seen_good, last_failed, done = False, False, 0
+    ahead = None  # the next chunk's scan, started where this one ends if it converges throughout
     for at in range(0, len(valid), chunk):
         idx = valid[at:at + chunk]
         pos = 0
         while pos < len(idx):
             run = idx[pos:]
-            # a fixed scan length (padded with the last sample, not solved) keeps one program
-            rows = list(run) + [run[-1]] * (chunk - len(run))
-            drives = stacked_drives(prob, T[rows], Y[rows][:, meas])
+            rows, got = ahead if ahead is not None and pos == 0 else scan(
+                run, x0, last_failed, None if history is None else Band.of(history))
+            ahead = None
             if history is None:
-                tr = jax.device_get(track(
-                    np.asarray(x0, float), drives, prob.unknowns, model.values,
-                    {name: np.asarray(v[rows], float) for name, v in varied.items()},
-                    len(run), last_failed))
+                tr = jax.device_get(got)
             else:
-                tr, states, bands = jax.device_get(follow(
-                    np.asarray(x0, float), drives, prob.unknowns, model.values,
-                    np.asarray(given[rows], float), Band.of(history), len(run), last_failed))
+                tr, states, bands = jax.device_get(got)
+            if pos == 0 and at + chunk < len(valid) and tr.converged[:len(run)].all():
+                # each sample converged on the scan: the next chunk starts from the last (as
+                # the loop below would start it), while this one's rows are made
+                ahead = scan(valid[at + chunk:at + 2 * chunk], tr.x[len(run) - 1], False,
+                             None if history is None else
+                             Band(*(a[len(run) - 1] for a in bands)))
             sigma = band(tr.dx_dm[:, model.nq:, :], len(meas), T[rows][:, list(tcols)], noise)
             cov = covariance(tr.dx_dm[:, model.nq:, :], len(meas), T[rows][:, list(tcols)],
                              noise) if prob.n_magnitudes > 1 else None
