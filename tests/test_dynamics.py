@@ -261,6 +261,14 @@ def test_simulate_writes_a_readings_log_the_estimator_reads(tmp_path):
     rigid.write_text(robot_to_toml(_with_damping(robot, 0.0)))
     r = _cli("simulate", rigid, "--no-inertia", "--duration", 0.1, "-o", tmp_path / "y.csv")
     assert r.returncode == 1 and "damping" in r.stderr
+    # -o - : the log on standard output (it wrote a file named '-'); with --json refused
+    r = subprocess.run([sys.executable, "-m", "tendonsense.cli", "simulate", str(path),
+                        "--tension", "t1=0.05", "--duration", "0.02", "-o", "-"],
+                       capture_output=True, text=True, timeout=900, cwd=tmp_path)
+    assert r.returncode == 0 and r.stdout.splitlines()[0].startswith("time,tension_t1,")
+    assert len(r.stdout.splitlines()) == 4 and not (tmp_path / "-").exists()
+    r = _cli("simulate", path, "--tension", "t1=1", "--duration", 0.02, "-o", "-", "--json")
+    assert r.returncode == 2 and "standard output" in r.stderr
 
 
 def test_a_step_far_too_long_is_not_tried_again_after_it_fails():

@@ -294,6 +294,28 @@ def test_output_files_are_readable_as_the_users_own(prototype, tmp_path):
     assert (tmp_path / "rows.csv").stat().st_mode & 0o777 == 0o600
 
 
+def test_an_output_into_a_named_pipe_or_device_is_written_into_it(tmp_path):
+    """``-o`` onto a named pipe (or ``/dev/null``) writes into it: moved into place, the
+    finished file replaced the pipe (as root, ``-o /dev/null`` replaced the device), and the
+    program reading the pipe got nothing. The estimates of a log are read from the pipe."""
+    import stat
+    import threading
+
+    from tendonsense.cli import main
+    pipe = tmp_path / "pipe"
+    os.mkfifo(pipe)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(pipe.read_text()), daemon=True)
+    reader.start()
+    code = main(["estimate", str(PROTOTYPE), "--readings",
+                 str(ROOT / "examples" / "tutorial" / "readings.csv"), "--unknown", "0.25,0,0,-1",
+                 "-o", str(pipe), "--quiet"])
+    reader.join(timeout=60)
+    assert code == 0 and stat.S_ISFIFO(pipe.stat().st_mode)
+    assert got and got[0].startswith("row,time,magnitude_1") and got[0].count("\n") == 301
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe"]  # no file left beside
+
+
 @pytest.mark.parametrize("table, words", [
     ("case,tendon,unknown\n", "no column tension_N"),
     ("case,tendon,unknown,force_X,tension_N,displacement_m,applied\n", "no data rows"),
@@ -1376,6 +1398,20 @@ def test_a_log_that_starts_with_a_release_is_noted(prototype, tmp_path):
     samples = read_readings(offset, prototype)[1]
     assert samples[1].tensions["t2"] == 0.008
     assert released_at_start(samples, prototype) == ""
+    # a live stream says the same, once, at the row where the tension has fallen (it said
+    # nothing)
+    from tendonsense.readings import ReleaseWatch
+
+    def watched(path):
+        watch = ReleaseWatch(prototype)
+        return [n for s in read_readings(path, prototype)[1] if (n := watch(s))]
+
+    assert watched(cut) == [note]
+    assert watched(ROOT / "examples" / "tutorial" / "readings.csv") == watched(given) == \
+        watched(offset) == []
+    p = cli("estimate", PROTOTYPE, "--readings", "-", "--unknown", "0.25,0,0,-1",
+            stdin=cut.read_text())
+    assert p.stderr.count(f"tendonsense: <stdin>: note: {note}") == 1, p.stderr
 
 
 def test_a_simulation_that_did_not_converge_leaves_its_shape_empty(tmp_path):

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import PROTOTYPE
+from conftest import PROTOTYPE, ROOT
 from tendonsense.estimation import PointForceUnknown, problem
 from tendonsense.forward import solve
 from tendonsense.online import OnlineEstimator
@@ -46,6 +46,27 @@ def test_update_follows_the_readings_and_survives_bad_ones(prototype, readings):
             assert spent < 1.0  # bounded work (the benchmark measures the milliseconds)
 
 
+def test_a_fixed_rescue_budget_on_a_least_squares_stream_follows_the_file_log():
+    """The first 200 rows of docs/motion.md's simulated log (three tendons measured, one
+    force): with a fixed ``rescue_budget`` the stuck tendon's band ends not found are solved
+    from the straight rod (a least-squares rescue was handed no readings: a TypeError at row
+    136), and row 188, which the follower fails from its rescue's solution as well, is the
+    rescue's estimate, as a file log keeps it (it was "did not converge within the work
+    budget")."""
+    from tendonsense import load_robot
+    from tendonsense.logs import estimate_readings
+    from tendonsense.readings import read_readings
+    robot = load_robot(ROOT / "examples" / "paper_prototype_damped.toml")
+    measured, samples = read_readings(ROOT / "tests" / "data" / "motion_rows_1_200.csv", robot)
+    tip = [PointForceUnknown(0.25, (0, 0, -1))]
+    online = OnlineEstimator(problem(robot, measured, tip), rescue_budget=200)
+    got = [online.update(s.displacements, s.tensions) for s in samples]
+    file = estimate_readings(robot, measured, samples, tip)
+    assert all(e.converged for e in got) and all(e.converged for e in file)
+    assert got[187].magnitudes[0] == pytest.approx(file[187].magnitudes[0], abs=1e-5)
+    assert got[187].sliding == file[187].sliding == ("in", "in", "in")
+
+
 def test_a_tension_the_material_cannot_take_is_refused(prototype):
     with pytest.raises(ValueError, match="would shorten the rod by more than half"):
         solve(prototype, {"t1": 40.0})  # E·A / 2 = 39.3 N at the tip
@@ -78,6 +99,24 @@ def test_cli_streams_stdin_to_stdout(readings):
         else:
             assert r["converged"] == "true"
             assert float(r["magnitude_1"]) == pytest.approx(F[k], rel=1e-6)
+
+
+def test_a_stream_cut_within_its_last_row_skips_that_row(readings):
+    """A stream that ends within a row (the writer killed mid-line: ``0.0039`` cut to
+    ``0.00``) skipped that row as a cut reading; it was estimated as a whole one (a force far
+    from the true one, exit 0). A row with its line break is estimated as before."""
+    F, T, y = readings
+    text = "time,tension_t1,tension_t2,tension_t3,displacement_t1\n" + "".join(
+        f"{0.01 * k},{float(T[k])!r},0,0,{float(y[k])!r}\n" for k in range(3))
+    cut = text[:-1 - len(repr(float(y[2]))) + 4]  # the last displacement's first digits
+    whole = stream(["--unknown", "0.25,0,0,-1"], text)
+    p = stream(["--unknown", "0.25,0,0,-1"], cut)
+    assert whole.returncode == 0 and p.returncode == 3, p.stderr
+    rows = list(csv.DictReader(io.StringIO(p.stdout)))
+    assert [r["converged"] for r in rows] == ["true", "true", "false"]
+    assert "the input ended within this row" in rows[2]["note"]
+    assert "row 3 skipped: the input ended within this row" in p.stderr
+    assert whole.stdout.splitlines()[:3] == p.stdout.splitlines()[:3]
 
 
 def test_cli_stream_stops_on_a_column_in_the_wrong_unit(readings, tmp_path):

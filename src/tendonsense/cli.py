@@ -30,7 +30,7 @@ import numpy as np
 
 from . import __version__, inputs, settings
 from .inputs import GravityUnknown, Noise, PointForceUnknown
-from .readings import ReadingsError
+from .readings import ReadingsError, special
 from .robot import RobotFileError, load_robot
 from .settings import pin
 from .units import GF, between, newtons
@@ -533,7 +533,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default 0)")
     p.add_argument("--seed", type=int, default=None, help="the noise's random seed")
     p.add_argument("-o", "--log", required=True, metavar="LOG.csv",
-                   help="the readings log to write (atomically)")
+                   help="the readings log to write (atomically; - writes it to standard "
+                        "output)")
 
     p = command("sweep", "forward statics over many parameter sets (a design sweep, a Monte "
                 "Carlo), on a Dask cluster if asked",
@@ -647,6 +648,10 @@ def _writable(path, what: str) -> None:
     folder = p.parent
     if p.is_dir():
         raise ValueError(f"{what} {path}: is a folder, not a file")
+    if special(p):  # a device or a named pipe: written into, its folder untouched
+        if not os.access(p, os.W_OK):
+            raise ValueError(f"{what} {path}: cannot be written (no permission)")
+        return
     _folder_exists(f"{what} {path}", folder)
     if not os.access(folder, os.W_OK):
         raise ValueError(f"{what} {path}: the folder {str(folder)!r} is not writable")
@@ -849,8 +854,8 @@ def _check_simulate(args, robot):
                           f"row's throughout (times are in seconds)")
     elif nexts and min(nexts) > args.duration:
         args.notes.append(f"note: {args.tensions}: its second row is at {min(nexts):g} s, "
-                          f"after --duration {args.duration:g} s: only the start of its first "
-                          f"ramp is simulated (times are in seconds)")
+                          f"after --duration {args.duration:g} s: only part of the stretch "
+                          f"between its first two rows is simulated (times are in seconds)")
     args.schedule = {**args.tension, **schedule}
     if error := inputs.duration_error("--duration", args.duration, max(
             [inputs.last_change(t, v) for t, v in schedule.values()], default=0.0)):
@@ -872,7 +877,11 @@ def _check_simulate(args, robot):
         raise ValueError(f"--no-inertia needs [rod] damping > 0 in {args.robot} (without "
                          f"inertia or damping every instant is the static equilibrium: use "
                          f"solve)")
-    _writable(args.log, "-o/--log")
+    if args.log == "-" and args.json:
+        raise UsageError("tendonsense simulate: -o - and --json would both go to standard "
+                         "output (write the log into a file, or leave out --json)")
+    if args.log != "-":
+        _writable(args.log, "-o/--log")
     if args.plot:
         _writable(args.plot, "--plot")
 
@@ -1813,9 +1822,14 @@ def _simulate(args, robot) -> bool:
                        output_dt=args.output_dt, max_step=args.max_step,
                        inertia=not args.no_inertia, sliding=args.sliding, q0=q0)
     cols = sim.readings(args.noise_length, args.noise_tension, args.seed)
-    write_csv_atomic(args.log, list(cols), [  # a sample not converged: its shape's cells empty
-        ["" if math.isnan(v) else v for v in row]
-        for row in np.column_stack(list(cols.values())).tolist()])
+    rows = [["" if math.isnan(v) else v for v in row]  # a sample not converged: shape empty
+            for row in np.column_stack(list(cols.values())).tolist()]
+    if args.log == "-":
+        out = csv.writer(sys.stdout, lineterminator="\n")
+        out.writerow(list(cols))
+        out.writerows(rows)
+    else:
+        write_csv_atomic(args.log, list(cols), rows)
     if args.plot:
         from . import plotting
         plotting.simulation(sim, args.plot, title=f"{robot.name}: simulated motion",
@@ -1832,7 +1846,7 @@ def _simulate(args, robot) -> bool:
                           "friction_state": {n: v.tolist()
                                              for n, v in sim.friction_state.items()},
                           "converged": sim.ok}))
-    else:
+    elif args.log != "-":  # (standard output holds the log)
         tip = robot.marker_names[-1] if robot.marker_names else None
         last = sim.time[-1] - sim.time[-2] if sim.time.size > 1 else args.output_dt
         uneven = f" (the last after {last:g} s)" if abs(last - args.output_dt) > 1e-9 else ""
@@ -1856,6 +1870,10 @@ def _simulate(args, robot) -> bool:
             print(f"NOT CONVERGED at {int(np.sum(~sim.converged))} of {sim.time.size} samples "
                   f"(from t = {sim.time[np.argmin(sim.converged)]:g} s): their lengths and "
                   f"markers are empty in {args.log}")
+    elif not sim.ok:
+        print(f"tendonsense simulate: NOT CONVERGED at {int(np.sum(~sim.converged))} of "
+              f"{sim.time.size} samples: their lengths and markers are empty in the log",
+              file=sys.stderr)
     return sim.ok
 
 

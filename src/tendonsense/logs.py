@@ -21,7 +21,8 @@ from .estimation import Noise, Unknown, problem
 from .inputs import WALK, check_unknowns
 from .online import OnlineEstimator
 from .problem import MISFIT, MISFIT_QUANTILE
-from .readings import (SKIPPED_SHOWN, LagWatch, LogSummary, ReadingsError, Sample,
+from .readings import (SKIPPED_SHOWN, LagWatch, LogSummary, ReadingsError, ReleaseWatch,
+                       Sample,
                        check_units, has_time, lagging, located, motion_step_error,
                        output_header, output_row, output_rows, parse_header, parse_row,
                        read_readings, released_at_start, stuck_rows_error, time_back,
@@ -273,6 +274,25 @@ def online_estimator(robot: Robot, measured: Sequence[str], unknowns: Sequence[U
     return online
 
 
+#: a streamed row whose line has no line break: the input ended within it
+CUT = "the input ended within this row (no line break after it): a reading cut short"
+
+
+class _Lines:
+    """The lines of a stream, and whether the last one read ended with a line break."""
+
+    def __init__(self, lines):
+        self.lines, self.ended = iter(lines), True
+
+    def __iter__(self):
+        return self
+
+    def __next__(self) -> str:
+        line = next(self.lines)
+        self.ended = line.endswith(("\n", "\r"))
+        return line
+
+
 def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point_forces=(),
                     noise: Noise = Noise(), source="<stdin>", on_skip=None,
                     on_sample=None, dynamic: bool = False, walk: float = WALK,
@@ -287,12 +307,16 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
     (every row written so far is complete). ``dynamic``: with the damped model over the rows'
     time stamps (the log needs a ``time`` column). ``on_note(note)``: a stream estimated at
     rest that moves a damped robot faster than its shape follows is said once
-    (:class:`~tendonsense.readings.LagWatch`)."""
+    (:class:`~tendonsense.readings.LagWatch`), and so is a tendon released from its first
+    row (:class:`~tendonsense.readings.ReleaseWatch`). Where the header ends with a line break, a
+    row without one (the input cut within it) is skipped (:data:`CUT`)."""
+    lines = _Lines(lines)
     reader = csv.reader(lines)
     try:
         header = next(reader)
     except StopIteration:
         raise ReadingsError(f"{source}: no header row") from None
+    ends = lines.ended  # lines that end with a line break: one without is a cut row
     columns = parse_header(header, robot, source)
     if dynamic and "time" not in columns.header:
         raise ReadingsError(f"{source}: no time column: estimation in motion (--dynamic) "
@@ -307,6 +331,7 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
     rows = good = 0
     watch = LagWatch(robot, columns.measured, noise.length) if on_note and not (
         dynamic or located(unknowns)) else None
+    release = ReleaseWatch(robot, noise.tension) if on_note and not located(unknowns) else None
     last = None  # the last good row's time
     first: list[list[str]] = []
     timed: list[Sample] = []  # in motion: the first rows' good samples, for their stamps
@@ -317,6 +342,8 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
             first.append(raw)
             check_units(f"{source} (its first {len(first)} rows)", columns, robot, first)
         s = parse_row(i, raw, columns, robot)
+        if ends and not lines.ended and not s.error:
+            s = replace(s, tensions={}, displacements={}, markers={}, error=CUT)
         if not s.error and s.time is not None:  # rows in time order (a file's rule)
             if back := time_back(s.time, last, once=dynamic):
                 s = replace(s, error=back)
@@ -328,8 +355,9 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
                             f"{source} (its first {len(timed)} rows)", timed,
                             " (a static stream is estimated without --dynamic)")):
                         raise ReadingsError(error)
-        if watch is not None and (note := watch(s)):
-            on_note(note)
+        for said in (watch, release):
+            if said is not None and (note := said(s)):
+                on_note(note)
         r = None if s.error else online.update(s.displacements, s.tensions, s.time, s.sliding)
         if r is None and on_skip:
             on_skip(s)

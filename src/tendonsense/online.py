@@ -19,7 +19,7 @@ from .forward import INADMISSIBLE
 from .inputs import WALK, Noise, check_noise, check_stuck, sliding as check_sliding
 from .problem import Problem, confounded, misfit_note, unseen
 from .result import SampleEstimate, joined
-from .sliding import DIRECTION, GIVEN, band_note, band_range
+from .sliding import DIRECTION, GIVEN, band_note, band_range, labels, turning_program
 from .statics import solve_system
 from .tendons import turns
 
@@ -164,7 +164,7 @@ class OnlineEstimator:
             if self._eval_cost is None:
                 self._eval_cost = self._time_evaluation(self._ref.drive(T, targets),
                                                         displacements, tensions, self._values)
-        est, row = self._solve(T, targets, said)
+        est, row = self._solve(T, targets, said, (displacements, tensions))
         if est is not None:
             return est
         iterations = row.iterations
@@ -215,17 +215,46 @@ class OnlineEstimator:
             restart = None
         if self._eval_cost is None and not prob.located:  # (located: timed by its search)
             self._eval_cost = self._time_evaluation(drive, displacements, tensions, values)
-        est, row2 = self._solve(T, targets, said, restart, iterations + evaluations)
+        est, row2 = self._solve(T, targets, said, (displacements, tensions), restart,
+                                iterations + evaluations)
+        if est is None and not prob.located:
+            # the rescue's solution, where the follower fails the reading from it too (as a
+            # file log keeps it): the state and the history as they were
+            est = self._rescued(x, values, displacements, tensions, said[1],
+                                iterations + evaluations)
         if est is None:
             return self._failed(INADMISSIBLE if not row2.admissible else note, row2)
         return est
 
-    def _solve(self, T, targets, said, restart=None, iterations=0):
+    def _rescued(self, x, values, displacements, tensions, stuck, iterations):
+        """The estimate at a rescue's solution ``x`` (solved with ``values``: its friction
+        signed by the failed sample's state) with its 1-σ band, each tendon labelled at its
+        turning there; None if it is none. A stuck tendon's range is not searched (the note
+        says so)."""
+        prob = self.problem
+        r = estimate_problem(prob, displacements, tensions, self.noise, x, values)
+        if not r.converged:
+            return None
+        est = replace(SampleEstimate.of(r), iterations=iterations + int(r.iterations))
+        if not self._follows:
+            return est
+        mu = np.asarray(self._values.friction, float)
+        state = np.asarray(values.friction, float)
+        state = np.where(mu > 0, (state[:, -1] if state.ndim == 2 else state)
+                         / np.where(mu > 0, mu, 1.0), 1.0)
+        phi = np.asarray(turning_program(prob.model.structure)(
+            np.asarray(r.extra["x"])[None, :prob.model.nq], values))[0]
+        said = labels(state, mu, phi, self.noise.tension, np.asarray(stuck) > 0)
+        return replace(est, friction_state=state, sliding=said, note=joined(est.note, (
+            "solved on its own: its range over the stuck tendon's friction band not "
+            "searched") if "stuck" in said else ""))
+
+    def _solve(self, T, targets, said, raw, restart=None, iterations=0):
         """The sample from the state's carry (or from ``restart``, a solution) in one
         compiled call (:class:`~tendonsense.fastpath.Live`): ``(estimate, row)``, the
         estimate None (and the state as it was) if it did not converge or left a located
         force's range (:class:`~tendonsense.fastpath.LiveRow`, its iterations counted from
-        ``iterations``)."""
+        ``iterations``; ``raw``: the reading's displacements and tensions, for a rescue)."""
         prob = self.problem
         reading = self._reading(T, targets, said, restart)
         state, flat = self._live.sample(self._state, reading, self._loads, self._unknowns,
@@ -252,12 +281,12 @@ class OnlineEstimator:
         stuck = np.flatnonzero(row.code == 0)
         if stuck.size:
             ends = self._ends_of(row.z[:2**stuck.size, :n], row.state, stuck, reading,
-                                 self._ref.drive(T, targets))
+                                 self._ref.drive(T, targets), raw)
             est = replace(est, magnitude_range=band_range(est.magnitudes, ends),
                           note=joined(est.note, band_note(est.magnitudes, ends)))
         return est, row
 
-    def _ends_of(self, z, state, stuck, reading, drive) -> np.ndarray:
+    def _ends_of(self, z, state, stuck, reading, drive, raw) -> np.ndarray:
         """The magnitudes at the ends of the band (``z`` from the call, NaN where an end was
         not found), those not found solved from the straight rod with a fixed
         ``rescue_budget`` if there is one: an admissible solution is kept in the end's slot,
@@ -269,7 +298,7 @@ class OnlineEstimator:
             if np.isnan(z[j]).any():
                 s = state.copy()
                 s[stuck] = np.asarray(signs)[:, None]
-                x, ok, _ = self._rescue(drive, None, None, self.rescue_budget, self._signed(s))
+                x, ok, _ = self._rescue(drive, *raw, self.rescue_budget, self._signed(s))
                 if ok and j < self._live.slots:
                     self._state, ok = self._live.put(self._state, x, reading, self._loads,
                                                      self._unknowns, self._values, j)

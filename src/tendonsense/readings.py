@@ -9,6 +9,7 @@ import io
 import math
 import os
 import secrets
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -601,13 +602,49 @@ def released_at_start(samples: Sequence[Sample], robot: Robot, tension_noise: fl
         moved = np.flatnonzero(np.abs(np.log(np.maximum(T, 1e-300) / T[0])) > step)
         if moved.size and T[moved[0]] < T[0]:
             k = moved[0]
-            return (f"{t.name}'s tension falls from the log's first row ({T[0]:.4g} N at row "
-                    f"{good[0].row}, {T[k]:.4g} N at row {good[k].row}): the friction history "
-                    f"takes {t.name} as pulled in at the first row, as after a pull or a hold "
-                    f"after one; if the log starts during a release, its rows until {t.name} "
-                    f"has fallen through its friction band read the friction of a pull "
-                    f"(start the log before the release)")
+            return _release_note(t.name, T[0], good[0].row, T[k], good[k].row)
     return ""
+
+
+def _release_note(name: str, first: float, row: int, fallen: float, at: int) -> str:
+    return (f"{name}'s tension falls from the log's first row ({first:.4g} N at row {row}, "
+            f"{fallen:.4g} N at row {at}): the friction history takes {name} as pulled in at "
+            f"the first row, as after a pull or a hold after one; if the log starts during a "
+            f"release, its rows until {name} has fallen through its friction band read the "
+            f"friction of a pull (start the log before the release)")
+
+
+class ReleaseWatch:
+    """:func:`released_at_start` for a stream, row by row: each tendon with friction is
+    watched from the first good row until its tension first moves by the step, and the note
+    given once, at the row where it has fallen (a tendon whose first tension is under a tenth
+    of the largest so far then is not looked at). Call it with each sample; it returns the
+    note, or ''."""
+
+    def __init__(self, robot: Robot, tension_noise: float = 0.0):
+        self.step = max(RELEASE_AT_START, 3 * tension_noise)
+        self.open = [t.name for t in robot.tendons if t.friction > 0] if with_sliding(
+            robot) else []
+        self.first: Sample | None = None
+        self.top = 0.0
+
+    def __call__(self, sample: Sample) -> str:
+        if not self.open or sample.error or not sample.tensions:
+            return ""
+        self.top = max(self.top, *sample.tensions.values())
+        if self.first is None:
+            self.first = sample
+            self.open = [n for n in self.open if not sample.sliding.get(n)]
+            return ""
+        for name in list(self.open):
+            T0, T = self.first.tensions.get(name, 0.0), sample.tensions.get(name, 0.0)
+            if abs(np.log(max(T, 1e-300) / T0)) <= self.step if T0 > 0 else False:
+                continue
+            self.open.remove(name)
+            if T < T0 and T0 > 0.1 * self.top:
+                self.open = []
+                return _release_note(name, T0, self.first.row, T, sample.row)
+        return ""
 
 
 #: a damped robot's shape lags its readings by about τ ẏ (τ = 3η/E): a file log estimated
@@ -666,7 +703,7 @@ def lagging(samples: Sequence[Sample], robot: Robot, measured: Sequence[str],
         return ""
     t = np.array([s.time for s in good])
     dt = np.median(np.diff(t))
-    if not 0 < dt <= tau or not np.all(np.diff(t) > 0):
+    if not 0 < dt <= tau or not np.all(np.diff(t) >= 0):  # (a stamp repeated: kept)
         return ""
     w = lag_window(tau, dt)
     if w > len(good):
@@ -691,8 +728,8 @@ class LagWatch:
     """:func:`lagging` for a stream, row by row: each measured length's rate fitted over the
     last :func:`lag_window` rows (at the median step of the first :data:`LAG_ROWS` rows), and
     the note given once, at the first row where τ|ẏ| exceeds :data:`LAG_NOTE` length noises
-    (the last row of the file's first such window); none once a time stamp does not go
-    forward (as the file's). Call it with each sample; it returns the note, or ''."""
+    (the last row of the file's first such window); none once a time stamp goes back (as
+    the file's). Call it with each sample; it returns the note, or ''."""
 
     def __init__(self, robot: Robot, measured: Sequence[str], length_noise: float):
         self.tau, self.measured = robot.rod.relaxation_time, list(measured)
@@ -704,8 +741,8 @@ class LagWatch:
     def __call__(self, sample: Sample) -> str:
         if self.done or sample.error or sample.time is None:
             return ""
-        if self.rows and not sample.time > self.rows[-1][0]:
-            self.done = True  # stamps that do not go forward (as :func:`lagging`: no note)
+        if self.rows and not sample.time >= self.rows[-1][0]:
+            self.done = True  # stamps that go back (as :func:`lagging`: no note)
             return ""
         self.rows.append((sample.time, [sample.displacements[n] for n in self.measured],
                           sample.row))
@@ -764,6 +801,16 @@ def write_text_atomic(path: str | Path, text: str):
         out.commit()
 
 
+def special(path: Path) -> bool:
+    """Whether ``path`` is there and neither a regular file nor a folder: a device or a named
+    pipe, written into, never replaced."""
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return False
+    return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
+
+
 def beside(path: Path) -> tuple[int, str]:
     """A new hidden file next to ``path``, open for writing: (descriptor, name). Made with
     the permissions of the file it replaces, or of a file the user creates (0o666 less the
@@ -785,28 +832,39 @@ def beside(path: Path) -> tuple[int, str]:
 
 class AtomicText(io.TextIOWrapper):
     """A text file (UTF-8; bytes through its ``buffer``) written next to ``path`` and moved into place by :meth:`commit`;
-    closed without a commit, it leaves nothing. Errors name ``path``, not the hidden file."""
+    closed without a commit, it leaves nothing. Errors name ``path``, not the hidden file.
+    Where ``path`` is a device or a named pipe (``/dev/null``, a FIFO a program reads), the
+    text is kept in memory and written into it by :meth:`commit` (moved into place, a file
+    would replace the device)."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
-        try:
-            fd, self.tmp = beside(self.path)
-        except OSError as exc:
-            raise OSError(f"{path}: cannot write ({exc.strerror})") from None
-        super().__init__(os.fdopen(fd, "wb"), encoding="utf-8", newline="")
+        self.tmp = None
+        if special(self.path):
+            super().__init__(io.BytesIO(), encoding="utf-8", newline="")
+        else:
+            try:
+                fd, self.tmp = beside(self.path)
+            except OSError as exc:
+                raise OSError(f"{path}: cannot write ({exc.strerror})") from None
+            super().__init__(os.fdopen(fd, "wb"), encoding="utf-8", newline="")
         self.committed = False
 
     def commit(self):
         self.flush()
         try:
-            os.replace(self.tmp, self.path)
+            if self.tmp is None:
+                with open(self.path, "wb") as out:
+                    out.write(self.buffer.getvalue())
+            else:
+                os.replace(self.tmp, self.path)
         except OSError as exc:
             raise OSError(f"{self.path}: cannot write ({exc.strerror})") from None
         self.committed = True
 
     def close(self):
         super().close()
-        if not self.committed and os.path.exists(self.tmp):
+        if not self.committed and self.tmp is not None and os.path.exists(self.tmp):
             os.unlink(self.tmp)
 
     def __exit__(self, *exc):

@@ -176,6 +176,17 @@ class SampleEstimate:
                 object.__setattr__(self, name, np.full(np.shape(getattr(self, name)), np.nan))
 
     @staticmethod
+    def of(r: Result) -> "SampleEstimate":
+        """A single estimate (:class:`Result`, e.g. a series' sample solved on its own) as a
+        sample of a series."""
+        note = r.note or ("" if r.converged else "did not converge")
+        located = [k for k, v in enumerate(r.extra.get("locations", [])) if v is not None]
+        return SampleEstimate(np.asarray(r.magnitudes), np.asarray(r.sigma), dict(r.markers),
+                              bool(r.converged), int(r.iterations), np.asarray(r.extra["x"]),
+                              note, np.array([r.extra["locations"][k] for k in located]),
+                              np.array([r.extra["location_sigma"][k] for k in located]))
+
+    @staticmethod
     def failed(prob, note: str, x=None, iterations: int = 0) -> "SampleEstimate":
         """A sample of the :class:`~tendonsense.problem.Problem` ``prob`` that has no estimate
         (not-a-number magnitudes and markers)."""

@@ -223,7 +223,7 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
                         tr.x[j]), **friction)
                 else:
                     v = model.values._replace(**{name: a[k] for name, a in varied.items()})
-                    out[k] = replace(_from_result(estimate_problem(
+                    out[k] = replace(SampleEstimate.of(estimate_problem(
                         prob, displacements[k], tensions[k], noise,
                         values=v if history is None else v._replace(friction=states[j] * mu),
                         budget=RESCUE_BUDGET if seen_good else None)), **friction)
@@ -248,15 +248,6 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
         done = end
     if done < n:  # every sample bad
         yield done, out[done:]
-
-
-def _from_result(r) -> SampleEstimate:
-    note = r.note or ("" if r.converged else "did not converge")
-    located = [k for k, v in enumerate(r.extra.get("locations", [])) if v is not None]
-    return SampleEstimate(np.asarray(r.magnitudes), np.asarray(r.sigma), dict(r.markers),
-                          bool(r.converged), int(r.iterations), np.asarray(r.extra["x"]), note,
-                          np.array([r.extra["locations"][k] for k in located]),
-                          np.array([r.extra["location_sigma"][k] for k in located]))
 
 
 def principal_order(m: np.ndarray) -> np.ndarray:
