@@ -188,6 +188,11 @@ def test_a_static_estimate_of_a_moving_log_is_noted(slow_rod):
     again = samples(np.r_[t[:5], t[4:]], np.r_[y[:5], y[4:]])
     assert "by up to" in lagging(again, robot, ["t1"], 1e-4) and len(watched(again)) == 1
     assert watched(samples(np.r_[t[:5], t[3:]], np.r_[y[:5], y[3:]])) == []
+    # a window of one stamp repeated has no slope (the sums' cancellation gave any number)
+    from tendonsense.readings import _slopes
+    frozen = _slopes(np.r_[np.full(5, 1.37), 1.37 + 0.01 * np.arange(1, 6)], 1e-4 * (
+        np.arange(10) + np.array([3, -2, 5, 1, -4, 0, 2, 1, -1, 3]) / 10)[:, None], 5)
+    assert np.isnan(frozen[0, 0]) and np.isfinite(frozen[1:]).all()  # (was inf)
     # rows τ apart (a window of 5 rows, under the 10 that set it): the first window is said
     ramp = samples(np.arange(12) * 0.3, -0.01 * np.arange(12) * 0.3)
     assert lag_window(0.3, 0.3) == 5 and "between rows 3 and" in lagging(ramp, robot, ["t1"],

@@ -314,6 +314,14 @@ def test_an_output_into_a_named_pipe_or_device_is_written_into_it(tmp_path):
     assert code == 0 and stat.S_ISFIFO(pipe.stat().st_mode)
     assert got and got[0].startswith("row,time,magnitude_1") and got[0].count("\n") == 301
     assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe"]  # no file left beside
+    # a symbolic link is written through (it was replaced by a file: ``-o /dev/stdout``
+    # sent to a file replaced /dev/stdout, as root)
+    from tendonsense.readings import write_text_atomic
+    (tmp_path / "real").mkdir()
+    (tmp_path / "link.csv").symlink_to("real/target.csv")
+    write_text_atomic(tmp_path / "link.csv", "a,b\n")
+    assert (tmp_path / "link.csv").is_symlink()
+    assert (tmp_path / "real" / "target.csv").read_text() == "a,b\n"
 
 
 @pytest.mark.parametrize("table, words", [

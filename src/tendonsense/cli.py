@@ -645,13 +645,14 @@ def _writable(path, what: str) -> None:
     if not str(path).strip():
         raise ValueError(f"{what}: an empty name (a file name is needed)")
     p = Path(path)
-    folder = p.parent
     if p.is_dir():
         raise ValueError(f"{what} {path}: is a folder, not a file")
     if special(p):  # a device or a named pipe: written into, its folder untouched
         if not os.access(p, os.W_OK):
-            raise ValueError(f"{what} {path}: cannot be written (no permission)")
+            raise ValueError(f"{what} {path}: cannot write (no permission)")
         return
+    # (a symbolic link: its target is written, beside it)
+    folder = Path(os.path.realpath(p)).parent if p.is_symlink() else p.parent
     _folder_exists(f"{what} {path}", folder)
     if not os.access(folder, os.W_OK):
         raise ValueError(f"{what} {path}: the folder {str(folder)!r} is not writable")

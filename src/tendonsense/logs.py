@@ -22,8 +22,7 @@ from .inputs import WALK, check_unknowns
 from .online import OnlineEstimator
 from .problem import MISFIT, MISFIT_QUANTILE
 from .readings import (SKIPPED_SHOWN, LagWatch, LogSummary, ReadingsError, ReleaseWatch,
-                       Sample,
-                       check_units, has_time, lagging, located, motion_step_error,
+                       Sample, check_units, has_time, lagging, located, motion_step_error,
                        output_header, output_row, output_rows, parse_header, parse_row,
                        read_readings, released_at_start, stuck_rows_error, time_back,
                        with_sliding, write_csv_atomic)

@@ -220,17 +220,17 @@ class OnlineEstimator:
         if est is None and not prob.located:
             # the rescue's solution, where the follower fails the reading from it too (as a
             # file log keeps it): the state and the history as they were
-            est = self._rescued(x, values, displacements, tensions, said[1],
-                                iterations + evaluations)
+            est = self._rescued(x, values, None if row is None else row.state[:, -1],
+                                displacements, tensions, said[1], iterations + evaluations)
         if est is None:
             return self._failed(INADMISSIBLE if not row2.admissible else note, row2)
         return est
 
-    def _rescued(self, x, values, displacements, tensions, stuck, iterations):
+    def _rescued(self, x, values, state, displacements, tensions, stuck, iterations):
         """The estimate at a rescue's solution ``x`` (solved with ``values``: its friction
-        signed by the failed sample's state) with its 1-σ band, each tendon labelled at its
-        turning there; None if it is none. A stuck tendon's range is not searched (the note
-        says so)."""
+        signed by the failed sample's ``state`` at each tendon's anchor, None: pulled in)
+        with its 1-σ band, each tendon labelled at its turning there; None if it is none. A
+        stuck tendon's range is not searched (the note says so)."""
         prob = self.problem
         r = estimate_problem(prob, displacements, tensions, self.noise, x, values)
         if not r.converged:
@@ -239,9 +239,7 @@ class OnlineEstimator:
         if not self._follows:
             return est
         mu = np.asarray(self._values.friction, float)
-        state = np.asarray(values.friction, float)
-        state = np.where(mu > 0, (state[:, -1] if state.ndim == 2 else state)
-                         / np.where(mu > 0, mu, 1.0), 1.0)
+        state = np.ones(mu.shape) if state is None else np.asarray(state, float)
         phi = np.asarray(turning_program(prob.model.structure)(
             np.asarray(r.extra["x"])[None, :prob.model.nq], values))[0]
         said = labels(state, mu, phi, self.noise.tension, np.asarray(stuck) > 0)
@@ -254,7 +252,8 @@ class OnlineEstimator:
         compiled call (:class:`~tendonsense.fastpath.Live`): ``(estimate, row)``, the
         estimate None (and the state as it was) if it did not converge or left a located
         force's range (:class:`~tendonsense.fastpath.LiveRow`, its iterations counted from
-        ``iterations``; ``raw``: the reading's displacements and tensions, for a rescue)."""
+        ``iterations``; ``raw``: the reading's displacements and tensions, for the band's
+        ends solved on their own)."""
         prob = self.problem
         reading = self._reading(T, targets, said, restart)
         state, flat = self._live.sample(self._state, reading, self._loads, self._unknowns,

@@ -655,7 +655,8 @@ LAG_NOTE = 2.0
 def _slopes(t: np.ndarray, v: np.ndarray, w: int, block: int = 4096) -> np.ndarray:
     """Least-squares slopes of ``v`` (N, k) against ``t`` (N,) over every ``w`` consecutive
     rows (N − w + 1, k): windowed sums of cumulative sums, ``block`` windows at a time, each
-    block centred on its own means (so that the sums stay small)."""
+    block centred on its own means (so that the sums stay small); NaN over a window whose
+    stamps span no time (one stamp repeated)."""
     def window(x):  # sums over each window
         c = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
         return c[w:] - c[:-w]
@@ -664,8 +665,11 @@ def _slopes(t: np.ndarray, v: np.ndarray, w: int, block: int = 4096) -> np.ndarr
     for a in range(0, t.size - w + 1, block):
         tb, vb = t[a:a + block + w - 1], v[a:a + block + w - 1]
         tb, vb = (tb - tb.mean())[:, None], vb - vb.mean(axis=0)
-        st, sv = window(tb), window(vb)
-        out.append((w * window(tb * vb) - st * sv) / (w * window(tb * tb) - st * st))
+        st, sv, stt = window(tb), window(vb), window(tb * tb)
+        spread = w * stt - st * st  # (a window of one repeated stamp: none, no slope)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out.append(np.where(spread > 1e-9 * w * stt, (w * window(tb * vb) - st * sv)
+                                / spread, np.nan))
     return np.concatenate(out)
 
 
@@ -831,20 +835,22 @@ def beside(path: Path) -> tuple[int, str]:
 
 
 class AtomicText(io.TextIOWrapper):
-    """A text file (UTF-8; bytes through its ``buffer``) written next to ``path`` and moved into place by :meth:`commit`;
-    closed without a commit, it leaves nothing. Errors name ``path``, not the hidden file.
-    Where ``path`` is a device or a named pipe (``/dev/null``, a FIFO a program reads), the
-    text is kept in memory and written into it by :meth:`commit` (moved into place, a file
-    would replace the device)."""
+    """A text file (UTF-8; bytes through its ``buffer``) written next to ``path`` and moved
+    into place by :meth:`commit`; closed without a commit, it leaves nothing. Errors name
+    ``path``, not the hidden file. A symbolic link is written through: its target is replaced
+    (the link kept; ``/dev/stdout`` sent to a file writes that file). Where ``path`` is a
+    device or a named pipe (``/dev/null``, a FIFO a program reads), the text is kept in memory
+    and written into it by :meth:`commit` (moved into place, a file would replace it)."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
+        self.target = Path(os.path.realpath(self.path))
         self.tmp = None
-        if special(self.path):
+        if special(self.target):
             super().__init__(io.BytesIO(), encoding="utf-8", newline="")
         else:
             try:
-                fd, self.tmp = beside(self.path)
+                fd, self.tmp = beside(self.target)
             except OSError as exc:
                 raise OSError(f"{path}: cannot write ({exc.strerror})") from None
             super().__init__(os.fdopen(fd, "wb"), encoding="utf-8", newline="")
@@ -854,10 +860,10 @@ class AtomicText(io.TextIOWrapper):
         self.flush()
         try:
             if self.tmp is None:
-                with open(self.path, "wb") as out:
+                with open(self.target, "wb") as out:
                     out.write(self.buffer.getvalue())
             else:
-                os.replace(self.tmp, self.path)
+                os.replace(self.tmp, self.target)
         except OSError as exc:
             raise OSError(f"{self.path}: cannot write ({exc.strerror})") from None
         self.committed = True

@@ -108,7 +108,12 @@ def series_chunks(prob: Problem, displacements: Sequence[Mapping[str, float]],
     tendon's friction at its anchor's state at every turn: solved at the state of each turn,
     such a rescue did not converge on a slow rod's log); with ``persistent``
     False, only if the sample before it converged (a series that may have no solution over a
-    stretch, e.g. a friction band's far end, is not solved row by row in vain)."""
+    stretch, e.g. a friction band's far end, is not solved row by row in vain).
+
+    Where every sample of a chunk converged on the scan, the next chunk's scan is started
+    (from its last solution and friction band) before the chunk is handed over, and runs while
+    the caller takes it: ``history``, ``given`` and ``stuck`` are read at the start, not
+    changed between chunks."""
     check_noise(noise, prob.robot)
     robot, model = prob.robot, prob.model
     n = len(displacements)
