@@ -307,8 +307,8 @@ def stream_readings(robot: Robot, lines, out, unknowns: Sequence[Unknown], point
     time stamps (the log needs a ``time`` column). ``on_note(note)``: a stream estimated at
     rest that moves a damped robot faster than its shape follows is said once
     (:class:`~tendonsense.readings.LagWatch`), and so is a tendon released from its first
-    row (:class:`~tendonsense.readings.ReleaseWatch`). Where the header ends with a line break, a
-    row without one (the input cut within it) is skipped (:data:`CUT`)."""
+    row (:class:`~tendonsense.readings.ReleaseWatch`). Where the header ends with a line
+    break, a row without one (the input cut within it) is skipped (:data:`CUT`)."""
     lines = _Lines(lines)
     reader = csv.reader(lines)
     try:

@@ -638,8 +638,8 @@ class ReleaseWatch:
             return ""
         for name in list(self.open):
             T0, T = self.first.tensions.get(name, 0.0), sample.tensions.get(name, 0.0)
-            if abs(np.log(max(T, 1e-300) / T0)) <= self.step if T0 > 0 else False:
-                continue
+            if T0 > 0 and abs(np.log(max(T, 1e-300) / T0)) <= self.step:
+                continue  # (not moved yet)
             self.open.remove(name)
             if T < T0 and T0 > 0.1 * self.top:
                 self.open = []
